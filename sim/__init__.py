@@ -1,0 +1,27 @@
+"""The MuJoCo side of taskcam: scenes, rendering, IK, episodes and the CLI.
+
+The GL backend is chosen here, before anything imports mujoco.
+"""
+
+from .gl import resolve_gl_backend
+
+resolve_gl_backend()
+
+from .render import Renderer, camera_pinhole, camera_pose  # noqa: E402
+from .scenario import Scenario, ScenarioError, load_scenario, parse_scenario  # noqa: E402
+from .scene import Robot, Scene, Target, build_scene  # noqa: E402
+
+__all__ = [
+    "Renderer",
+    "Robot",
+    "Scenario",
+    "ScenarioError",
+    "Scene",
+    "Target",
+    "build_scene",
+    "camera_pinhole",
+    "camera_pose",
+    "load_scenario",
+    "parse_scenario",
+    "resolve_gl_backend",
+]

@@ -1,0 +1,105 @@
+"""Inverse kinematics with mink: put a robot's camera at a point, looking at another."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mink
+import mujoco
+import numpy as np
+
+from .scene import BASE_JOINTS, JOINT_SPEEDS, ROBOT_JOINTS, Robot
+
+OPTICAL_AXIS = (0.0, 0.0, -1.0)  # a MuJoCo camera looks along its -z axis
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """A solution, or the best attempt, with its residual errors."""
+
+    qpos: np.ndarray  # full model configuration
+    position_error_m: float  # camera centre to the commanded position
+    orientation_error_deg: float  # optical axis to the direction of the look-at point
+    iterations: int
+    converged: bool
+
+    def summary(self) -> dict[str, float | int | bool]:
+        return {"position_error_m": self.position_error_m,
+                "orientation_error_deg": self.orientation_error_deg,
+                "iterations": self.iterations, "converged": self.converged}
+
+
+def camera_errors(model: mujoco.MjModel, data: mujoco.MjData, site: str,
+                  position: np.ndarray | None, look_at: np.ndarray) -> tuple[float, float]:
+    """Position error (m) and angle (deg) between the optical axis and the look-at direction."""
+    s = data.site(site)
+    axis = -s.xmat.reshape(3, 3)[:, 2]
+    to_target = look_at - s.xpos
+    cos = float(axis @ to_target / max(np.linalg.norm(to_target), 1e-12))
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+    pos_err = 0.0 if position is None else float(np.linalg.norm(s.xpos - position))
+    return pos_err, angle
+
+
+@dataclass(frozen=True)
+class IKSettings:
+    max_iterations: int = 400
+    dt: float = 0.1  # s per iteration; joint speeds bound each step
+    position_tolerance_m: float = 5e-4
+    orientation_tolerance_deg: float = 0.05
+    posture_cost: float = 1e-3
+    damping: float = 1e-4
+
+
+def solve_camera_pose(
+    model: mujoco.MjModel,
+    q0: np.ndarray,
+    robot: Robot,
+    look_at: np.ndarray,
+    position: np.ndarray | None = None,
+    move_base: bool = True,
+    settings: IKSettings = IKSettings(),
+) -> IKResult:
+    """Move ``robot`` (only) so its left camera sits at ``position`` looking at ``look_at``.
+
+    With ``position`` None only the gaze is controlled. The other robots' joints, and
+    the base when ``move_base`` is False, are frozen. Joint ranges and speeds are limits.
+    """
+    config = mink.Configuration(model, q0)
+    site = robot.optical_site
+    look = mink.LookAtTask(site, "site", axis=OPTICAL_AXIS, cost=1.0)
+    look.set_target(np.asarray(look_at, float))
+    tasks: list[mink.Task] = [look]
+    if position is not None:
+        frame = mink.FrameTask(site, "site", position_cost=1.0, orientation_cost=0.0)
+        target = config.get_transform_frame_to_world(site, "site")
+        frame.set_target(mink.SE3.from_rotation_and_translation(
+            target.rotation(), np.asarray(position, float)))
+        tasks.append(frame)
+    posture = mink.PostureTask(model, cost=settings.posture_cost)
+    posture.set_target(q0)
+    tasks.append(posture)
+
+    own = set(robot.dof_adr.tolist())
+    if not move_base:
+        own -= {int(robot.dof_adr[ROBOT_JOINTS.index(j)]) for j in BASE_JOINTS}
+    frozen = [i for i in range(model.nv) if i not in own]
+    constraints = [mink.DofFreezingTask(model, dof_indices=frozen)] if frozen else []
+    speeds = {robot.joint(j): JOINT_SPEEDS[j] for j in ROBOT_JOINTS}
+    limits = [mink.ConfigurationLimit(model), mink.VelocityLimit(model, speeds)]
+
+    errors = camera_errors(model, config.data, site, position, look_at)
+    iterations = 0
+    while iterations < settings.max_iterations and not _within(errors, settings):
+        velocity = mink.solve_ik(config, tasks, settings.dt, "daqp", damping=settings.damping,
+                                 limits=limits, constraints=constraints)
+        config.integrate_inplace(velocity, settings.dt)
+        iterations += 1
+        errors = camera_errors(model, config.data, site, position, look_at)
+    return IKResult(config.q.copy(), errors[0], errors[1], iterations, _within(errors, settings))
+
+
+def _within(errors: tuple[float, float], settings: IKSettings) -> bool:
+    return (errors[0] <= settings.position_tolerance_m
+            and errors[1] <= settings.orientation_tolerance_deg)

@@ -1,0 +1,90 @@
+"""The rerun recording of an episode: cameras, images, depth, grid, ratings, choices.
+
+Entity paths: ``world/grid``, ``world/targets``, ``world/<robot>/camera`` (a pinhole with
+``rgb`` and ``depth`` beneath it), ``world/<robot>/candidates``, ``world/<robot>/chosen``.
+Everything is on the ``step`` timeline. Quaternions go to rerun as x, y, z, w.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+
+from mapping import OccupancyGrid, Pinhole, opencv_pose
+
+
+def _colormap(values: np.ndarray) -> np.ndarray:
+    """Blue (low) to yellow (high), uint8 RGB, for values in [0, 1]."""
+    v = np.clip(np.nan_to_num(values), 0.0, 1.0)[:, None]
+    low, high = np.array([40, 60, 200]), np.array([250, 220, 30])
+    return (low + v * (high - low)).astype(np.uint8)
+
+
+class Recorder:
+    """Writes one ``.rrd`` file; a no-op when ``path`` is None."""
+
+    def __init__(self, path: Path | None, recording_id: str) -> None:
+        self.path = path
+        self.rec: rr.RecordingStream | None = None
+        if path is not None:
+            self.rec = rr.RecordingStream("taskcam", recording_id=recording_id)
+            self.rec.save(str(path))
+            self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+    def step(self, step: int) -> None:
+        if self.rec is not None:
+            self.rec.set_time("step", sequence=step)
+
+    def targets(self, names: list[str], positions: np.ndarray, radii: list[float]) -> None:
+        if self.rec is not None:
+            self.rec.log("world/targets", rr.Points3D(positions, radii=radii, labels=names,
+                                                      colors=[255, 60, 60]), static=True)
+
+    def camera(self, robot: str, T_world_mjcam: np.ndarray, pinhole: Pinhole,
+               rgb: np.ndarray | None = None, depth: np.ndarray | None = None) -> None:
+        """A camera's pose and intrinsics, with what it saw."""
+        if self.rec is None:
+            return
+        T = opencv_pose(T_world_mjcam)
+        path = f"world/{robot}/camera"
+        self.rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        self.rec.log(path, rr.Pinhole(image_from_camera=pinhole.matrix,
+                                      resolution=[pinhole.width, pinhole.height],
+                                      camera_xyz=rr.ViewCoordinates.RDF))
+        if rgb is not None:
+            self.rec.log(f"{path}/rgb", rr.Image(rgb))
+        if depth is not None:
+            self.rec.log(f"{path}/depth", rr.DepthImage(np.where(np.isfinite(depth), depth, 0.0),
+                                                        meter=1.0))
+
+    def grid(self, grid: OccupancyGrid, occupied: float = 0.5) -> None:
+        """Voxels with P > ``occupied`` as boxes coloured by probability."""
+        if self.rec is None:
+            return
+        p = grid.probability()
+        idx = np.argwhere(p > occupied)
+        half = np.full((len(idx), 3), grid.resolution / 2)
+        self.rec.log("world/grid", rr.Boxes3D(centers=grid.centers(idx), half_sizes=half,
+                                              colors=_colormap(2 * p[tuple(idx.T)] - 1),
+                                              fill_mode="solid"))
+
+    def candidates(self, robot: str, positions: np.ndarray, totals: np.ndarray) -> None:
+        if self.rec is None:
+            return
+        scale = totals / totals.max() if len(totals) and totals.max() > 0 else totals
+        self.rec.log(f"world/{robot}/candidates",
+                     rr.Points3D(positions, colors=_colormap(scale), radii=0.01))
+
+    def chosen(self, robot: str, position: np.ndarray, target: np.ndarray, label: str) -> None:
+        if self.rec is not None:
+            self.rec.log(f"world/{robot}/chosen",
+                         rr.Arrows3D(origins=[position], vectors=[target - position],
+                                     labels=[label], colors=[60, 220, 90]))
+
+    def close(self) -> None:
+        if self.rec is not None:
+            self.rec.flush()
+            self.rec.disconnect()
+            self.rec = None

@@ -1,0 +1,93 @@
+"""Offscreen rendering of the scene's cameras: RGB, metric depth, segmentation."""
+
+from __future__ import annotations
+
+import math
+from types import TracebackType
+
+import mujoco
+import numpy as np
+
+from mapping import Pinhole
+
+
+def camera_pinhole(model: mujoco.MjModel, camera: str) -> Pinhole:
+    """Intrinsics of a named camera at its own resolution."""
+    cam = model.camera(camera)
+    width, height = (int(v) for v in model.cam_resolution[cam.id])
+    return Pinhole.from_fovy(math.radians(float(model.cam_fovy[cam.id])), width, height)
+
+
+def camera_pose(data: mujoco.MjData, camera: str) -> np.ndarray:
+    """``T_world_cam`` (4x4) of a named camera, MuJoCo convention (-z forward, +y up)."""
+    cam = data.camera(camera)
+    T = np.eye(4)
+    T[:3, :3] = cam.xmat.reshape(3, 3)
+    T[:3, 3] = cam.xpos
+    return T
+
+
+def far_plane(model: mujoco.MjModel) -> float:
+    """Distance (m) of the far clipping plane: depth there means nothing was hit."""
+    return float(model.vis.map.zfar * model.stat.extent)
+
+
+class Renderer:
+    """Offscreen renderer for cameras of one resolution. Use as a context manager.
+
+    A renderer belongs to the thread that made it.
+    """
+
+    def __init__(self, model: mujoco.MjModel, width: int, height: int) -> None:
+        self.model = model
+        self._renderer: mujoco.Renderer | None = mujoco.Renderer(model, height, width)
+        self._sky = 0.999 * far_plane(model)
+
+    def __enter__(self) -> Renderer:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    @property
+    def _r(self) -> mujoco.Renderer:
+        if self._renderer is None:
+            raise RuntimeError("renderer is closed")
+        return self._renderer
+
+    def rgb(self, data: mujoco.MjData, camera: str) -> np.ndarray:
+        """RGB image (h, w, 3) uint8, row 0 at the top."""
+        r = self._r
+        r.update_scene(data, camera)
+        return r.render().copy()
+
+    def depth(self, data: mujoco.MjData, camera: str) -> np.ndarray:
+        """Metric z-depth (h, w) float32 along the optical axis; ``inf`` where nothing was hit."""
+        r = self._r
+        r.enable_depth_rendering()
+        try:
+            r.update_scene(data, camera)
+            depth = r.render().copy()
+        finally:
+            r.disable_depth_rendering()
+        depth[depth >= self._sky] = np.inf
+        return depth
+
+    def segmentation(self, data: mujoco.MjData, camera: str) -> np.ndarray:
+        """Geom id per pixel (h, w) int32; -1 where no geom was hit."""
+        r = self._r
+        r.enable_segmentation_rendering()
+        try:
+            r.update_scene(data, camera)
+            seg = r.render().copy()
+        finally:
+            r.disable_segmentation_rendering()
+        ids = seg[..., 0].astype(np.int32)
+        ids[seg[..., 1] != int(mujoco.mjtObj.mjOBJ_GEOM)] = -1
+        return ids

@@ -1,0 +1,352 @@
+"""Scenario files: TOML parsed into validated, frozen dataclasses.
+
+Every field has a default except where noted, so a scenario file states only what it
+changes. An invalid file raises ScenarioError, whose message is one line naming the
+file, the key, the bad value and what is accepted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+DEFAULT_SCENARIO = SCENARIO_DIR / "default.toml"
+MAX_ROBOTS = 4
+
+
+class ScenarioError(ValueError):
+    """An invalid scenario: one line naming file, key, value and what is accepted."""
+
+    def __init__(self, source: str, key: str, value: object, accepted: str) -> None:
+        self.source, self.key, self.value, self.accepted = source, key, value, accepted
+        super().__init__(f"{source}: key '{key}': bad value {value!r}; accepted: {accepted}")
+
+
+Check = tuple[Callable[[Any], bool], str]
+
+
+def _check(predicate: Callable[[Any], bool], accepted: str, default: Any = dataclasses.MISSING,
+           default_factory: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field whose value must satisfy ``predicate``."""
+    meta = {"check": (predicate, accepted)}
+    if default_factory is not dataclasses.MISSING:
+        return field(default_factory=default_factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def _positive(default: float) -> Any:
+    return _check(lambda v: v > 0 and math.isfinite(v), "a number > 0", default)
+
+
+def _probability(default: float) -> Any:
+    return _check(lambda v: 0 < v < 1, "a number strictly between 0 and 1", default)
+
+
+def _nonnegative(default: float) -> Any:
+    return _check(lambda v: v >= 0 and math.isfinite(v), "a number >= 0", default)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The stereo head: every robot's two cameras share these."""
+
+    fovy_deg: float = _check(lambda v: 0 < v < 180, "degrees in (0, 180)", 60.0)
+    width: int = _check(lambda v: 16 <= v <= 4096, "pixels in [16, 4096]", 640)
+    height: int = _check(lambda v: 16 <= v <= 4096, "pixels in [16, 4096]", 480)
+    baseline_m: float = _check(lambda v: 0 < v <= 0.2, "metres in (0, 0.2]", 0.12)
+    near_m: float = _positive(0.35)  # depth of field, near limit
+    far_m: float = _positive(1.5)  # depth of field, far limit
+
+
+@dataclass(frozen=True)
+class BasePose:
+    """A mobile base's start pose on the floor."""
+
+    x: float
+    y: float
+    yaw_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class RobotsConfig:
+    count: int = _check(lambda v: 1 <= v <= MAX_ROBOTS, f"an integer 1 to {MAX_ROBOTS}", 2)
+    # Explicit start poses, one per robot; empty: evenly on a circle facing the work-piece.
+    bases: tuple[BasePose, ...] = ()
+    start_radius_m: float = _positive(1.8)
+    move_base: bool = True
+
+
+@dataclass(frozen=True)
+class TargetConfig:
+    """A circular hole in the plate; offset in the plate frame from its centre (m)."""
+
+    name: str = _check(lambda v: v.isidentifier(), "a name of letters, digits and _")
+    role: Literal["primary", "secondary"] = "primary"
+    offset_m: tuple[float, float] = (0.0, 0.0)
+    radius_m: float = _check(lambda v: 0.002 <= v <= 0.1, "metres in [0.002, 0.1]", 0.02)
+    st_error_m: float = _nonnegative(0.0)  # secondary-to-primary geometric tolerance (eq. 4)
+
+
+def _default_targets() -> tuple[TargetConfig, ...]:
+    return (
+        TargetConfig("primary", "primary", (0.05, 0.0), 0.02),
+        TargetConfig("secondary", "secondary", (0.17, 0.1), 0.015, 0.001),
+    )
+
+
+@dataclass(frozen=True)
+class WorkpieceConfig:
+    position: tuple[float, float] = (0.0, 0.0)  # floor position of the plate centre (m)
+    yaw_deg: float = 0.0
+    targets: tuple[TargetConfig, ...] = field(default_factory=_default_targets)
+
+
+@dataclass(frozen=True)
+class PanelConfig:
+    position: tuple[float, float, float] = (-0.15, 0.6, 0.0)  # bottom-edge centre (m)
+    yaw_deg: float = 0.0
+
+
+OBSTACLE_SIZES = {"box": 3, "cylinder": 2, "sphere": 1}
+
+
+@dataclass(frozen=True)
+class ObstacleConfig:
+    """A primitive obstacle: box half-extents, cylinder (radius, half-height), sphere radius."""
+
+    shape: Literal["box", "cylinder", "sphere"] = "box"
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    size: tuple[float, ...] = _check(
+        lambda v: 1 <= len(v) <= 3 and all(s > 0 for s in v), "1 to 3 numbers > 0", (0.1,)
+    )
+    yaw_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """Voxel occupancy grid and its log-odds sensor model (probabilities)."""
+
+    resolution_m: float = _check(lambda v: 0.005 <= v <= 0.5, "metres in [0.005, 0.5]", 0.05)
+    bounds_min: tuple[float, float, float] = (-1.5, -1.5, 0.0)
+    bounds_max: tuple[float, float, float] = (1.5, 1.5, 1.8)
+    hit: float = _probability(0.97)
+    miss: float = _probability(0.04)
+    clamp_min: float = _probability(0.001)
+    clamp_max: float = _probability(0.999)
+    max_range_m: float = _positive(4.0)
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """Initial scan: each robot looks from its start pose at points around the target."""
+
+    views_per_robot: int = _check(lambda v: 1 <= v <= 50, "an integer 1 to 50", 5)
+    scan_spread_m: float = _nonnegative(0.5)
+    pixel_stride: int = _check(lambda v: 1 <= v <= 16, "an integer 1 to 16", 4)
+
+
+@dataclass(frozen=True)
+class RatingConfig:
+    """Rating function exponents (eq. 1) and occupancy thresholds."""
+
+    alpha: float = _nonnegative(1.0)  # depth of field
+    beta: float = _nonnegative(1.0)  # resolution
+    gamma: float = _nonnegative(1.0)  # target field visibility
+    delta: float = _nonnegative(1.0)  # target angular visibility
+    free_threshold: float = _probability(0.05)  # candidate voxels: P below this
+    occluding_threshold: float = _probability(0.5)  # lines of sight blocked at P >= this
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    strategy: Literal["exhaustive"] = "exhaustive"
+    ik_candidates: int = _check(lambda v: 1 <= v <= 1000, "an integer 1 to 1000", 40)
+    robot_separation_m: float = _nonnegative(0.5)  # between chosen camera positions
+    clearance_m: float = _nonnegative(0.03)  # robot geometry to anything else, after IK
+    camera_z_m: tuple[float, float] = (0.3, 1.6)  # heights the camera may be placed at
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str = "default"
+    seed: int = _check(lambda v: v >= 0, "an integer >= 0", 0)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    robots: RobotsConfig = field(default_factory=RobotsConfig)
+    workpiece: WorkpieceConfig = field(default_factory=WorkpieceConfig)
+    panel: PanelConfig = field(default_factory=PanelConfig)
+    obstacles: tuple[ObstacleConfig, ...] = ()
+    grid: GridConfig = field(default_factory=GridConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    rating: RatingConfig = field(default_factory=RatingConfig)
+    search: SearchConfig = field(default_factory=SearchConfig)
+    source: str = "<defaults>"  # the file it was read from
+
+    def base_poses(self) -> tuple[BasePose, ...]:
+        """One start pose per robot: the explicit ones, else evenly on a circle."""
+        if self.robots.bases:
+            return self.robots.bases
+        cx, cy = self.workpiece.position
+        poses = []
+        for i in range(self.robots.count):
+            angle = math.pi + 2 * math.pi * i / self.robots.count
+            poses.append(BasePose(
+                cx + self.robots.start_radius_m * math.cos(angle),
+                cy + self.robots.start_radius_m * math.sin(angle),
+                math.degrees(angle + math.pi),
+            ))
+        return tuple(poses)
+
+
+# ---------------------------------------------------------------- parsing
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            inner = args[0]
+            if dataclasses.is_dataclass(inner):
+                return f"a list of tables ({', '.join(f.name for f in dataclasses.fields(inner))})"
+            return f"a list of {_type_name(inner)}s"
+        return f"a list of {len(args)} {_type_name(args[0])}s"
+    if dataclasses.is_dataclass(tp):
+        return f"a table with keys {', '.join(f.name for f in dataclasses.fields(tp))}"
+    return {float: "number", int: "integer", bool: "boolean", str: "string"}.get(tp, str(tp))
+
+
+def _convert(tp: Any, value: Any, key: str, source: str) -> Any:
+    def bad() -> ScenarioError:
+        return ScenarioError(source, key, value, _type_name(tp))
+
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        if value not in typing.get_args(tp):
+            raise bad()
+        return value
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, list):
+            raise bad()
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, f"{key}[{i}]", source) for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise bad()
+        return tuple(_convert(a, v, key, source) for a, v in zip(args, value, strict=True))
+    if origin in (types.UnionType, typing.Union):
+        raise TypeError(f"unsupported field type {tp}")
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, Mapping):
+            raise bad()
+        return _build(typing.cast(type, tp), value, key, source)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise bad()
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad()
+        return value
+    if tp is bool or tp is str:
+        if not isinstance(value, tp):
+            raise bad()
+        return value
+    raise TypeError(f"unsupported field type {tp}")
+
+
+def _build(cls: type, table: Mapping[str, Any], prefix: str, source: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "source"}
+    for key in table:
+        if key not in fields:
+            name = f"{prefix}.{key}" if prefix else key
+            raise ScenarioError(source, name, table[key], "keys " + ", ".join(fields))
+    kwargs = {}
+    for name, f in fields.items():
+        key = f"{prefix}.{name}" if prefix else name
+        if name not in table:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise ScenarioError(source, key, None, f"a required {_type_name(hints[name])}")
+            continue
+        value = _convert(hints[name], table[name], key, source)
+        check: Check | None = f.metadata.get("check")
+        if check is not None and not check[0](value):
+            raise ScenarioError(source, key, table[name], check[1])
+        kwargs[name] = value
+    return cls(**kwargs)
+
+
+def _validate(s: Scenario) -> None:
+    src = s.source
+    if s.camera.near_m >= s.camera.far_m:
+        raise ScenarioError(src, "camera.near_m", s.camera.near_m,
+                            f"less than camera.far_m ({s.camera.far_m})")
+    if s.robots.bases and len(s.robots.bases) != s.robots.count:
+        raise ScenarioError(src, "robots.bases", len(s.robots.bases),
+                            f"exactly robots.count = {s.robots.count} poses, or none")
+    g = s.grid
+    for axis in range(3):
+        if g.bounds_max[axis] - g.bounds_min[axis] < 2 * g.resolution_m:
+            raise ScenarioError(src, "grid.bounds_max", list(g.bounds_max),
+                                "each bound at least two voxels above grid.bounds_min")
+    if not g.clamp_min < g.miss < 0.5 < g.hit < g.clamp_max:
+        raise ScenarioError(src, "grid.miss", g.miss,
+                            "clamp_min < miss < 0.5 < hit < clamp_max")
+    if s.search.camera_z_m[0] >= s.search.camera_z_m[1]:
+        raise ScenarioError(src, "search.camera_z_m", list(s.search.camera_z_m),
+                            "[low, high] with low < high")
+    if s.rating.free_threshold >= s.rating.occluding_threshold:
+        raise ScenarioError(src, "rating.free_threshold", s.rating.free_threshold,
+                            "less than rating.occluding_threshold")
+    targets = s.workpiece.targets
+    primaries = [t for t in targets if t.role == "primary"]
+    if len(primaries) != 1:
+        raise ScenarioError(src, "workpiece.targets", [t.name for t in targets],
+                            "exactly one target with role 'primary'")
+    names = [t.name for t in targets]
+    for i, name in enumerate(names):
+        if names.index(name) != i:
+            raise ScenarioError(src, f"workpiece.targets[{i}].name", name, "a unique name")
+    for i, o in enumerate(s.obstacles):
+        if len(o.size) != OBSTACLE_SIZES[o.shape]:
+            raise ScenarioError(src, f"obstacles[{i}].size", list(o.size),
+                                f"{OBSTACLE_SIZES[o.shape]} numbers for a {o.shape}")
+
+
+def parse_scenario(data: Mapping[str, Any], source: str = "<string>") -> Scenario:
+    """Build and validate a Scenario from a parsed TOML table."""
+    scenario = _build(Scenario, data, "", source)
+    scenario = dataclasses.replace(scenario, source=source)
+    _validate(scenario)
+    return typing.cast(Scenario, scenario)
+
+
+def load_scenario(path: str | Path | None = None, seed: int | None = None) -> Scenario:
+    """Read a scenario file (the default one when ``path`` is None)."""
+    path = Path(path) if path is not None else DEFAULT_SCENARIO
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ScenarioError(str(path), "<file>", str(path),
+                            f"a readable TOML file ({exc.strerror})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(str(path), "<syntax>", str(exc), "valid TOML") from None
+    data.setdefault("name", path.stem)
+    scenario = parse_scenario(data, str(path))
+    if seed is not None:
+        if seed < 0:
+            raise ScenarioError("--seed", "seed", seed, "an integer >= 0")
+        scenario = dataclasses.replace(scenario, seed=seed)
+    return scenario

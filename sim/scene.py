@@ -1,0 +1,267 @@
+"""Scene assembly: a scenario and the MJCF models of ``models/`` composed with MjSpec."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from .scenario import Scenario, ScenarioError
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+ROBOT_XML = MODELS_DIR / "camera_robot.xml"
+WORKPIECE_XML = MODELS_DIR / "workpiece.xml"
+PANEL_XML = MODELS_DIR / "panel.xml"
+OBSTACLES_XML = MODELS_DIR / "obstacles.xml"
+ROBOT_JOINTS = (
+    "base_x", "base_y", "base_yaw",
+    "shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3",
+)
+BASE_JOINTS = ROBOT_JOINTS[:3]
+# Maximum joint speeds (m/s, rad/s): UR5e arm joints 180 deg/s; a slow mobile base.
+JOINT_SPEEDS = dict.fromkeys(ROBOT_JOINTS[3:], math.pi) | {
+    "base_x": 0.5, "base_y": 0.5, "base_yaw": 1.0,
+}
+
+
+def yaw_quat(yaw_rad: float) -> list[float]:
+    """Quaternion (w, x, y, z) of a rotation by ``yaw_rad`` about +z."""
+    return [math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)]
+
+
+@dataclass(frozen=True)
+class Target:
+    """A circular-hole target in the world frame (m)."""
+
+    name: str
+    role: str
+    geom: str  # geom name in the compiled model
+    position: np.ndarray  # centre of the hole's mouth
+    normal: np.ndarray  # unit, pointing out of the plate
+    radius: float
+    st_error: float
+
+    def rim(self, count: int = 8, scale: float = 1.0) -> np.ndarray:
+        """``count`` points on the rim circle (scaled by ``scale``), shape (count, 3)."""
+        helper = np.array([1.0, 0, 0]) if abs(self.normal[0]) < 0.9 else np.array([0, 1.0, 0])
+        u = np.cross(self.normal, helper)
+        u /= np.linalg.norm(u)
+        v = np.cross(self.normal, u)
+        angles = np.linspace(0, 2 * np.pi, count, endpoint=False)
+        ring = np.cos(angles)[:, None] * u + np.sin(angles)[:, None] * v
+        return self.position + scale * self.radius * ring
+
+    def summary(self) -> dict[str, object]:
+        return {"name": self.name, "role": self.role, "position": self.position.tolist(),
+                "normal": self.normal.tolist(), "radius": self.radius}
+
+
+@dataclass(frozen=True)
+class Robot:
+    """Names and indices of one attached camera robot."""
+
+    name: str  # "r1"
+    qpos_adr: np.ndarray  # qpos index of each of ROBOT_JOINTS
+    dof_adr: np.ndarray  # dof index of each of ROBOT_JOINTS
+    body_ids: frozenset[int]  # every body of the robot
+
+    @property
+    def prefix(self) -> str:
+        return f"{self.name}/"
+
+    @property
+    def camera(self) -> str:
+        return f"{self.name}/left"
+
+    @property
+    def right_camera(self) -> str:
+        return f"{self.name}/right"
+
+    @property
+    def optical_site(self) -> str:
+        return f"{self.name}/left_optical"
+
+    @property
+    def head_body(self) -> str:
+        return f"{self.name}/head"
+
+    def joint(self, name: str) -> str:
+        return f"{self.name}/{name}"
+
+
+@dataclass
+class Scene:
+    """The compiled world of one scenario, and where everything is in it."""
+
+    scenario: Scenario
+    spec: mujoco.MjSpec
+    model: mujoco.MjModel
+    robots: tuple[Robot, ...]
+    targets: tuple[Target, ...]
+    start_qpos: np.ndarray
+
+    @property
+    def primary(self) -> Target:
+        return next(t for t in self.targets if t.role == "primary")
+
+    def make_data(self, qpos: np.ndarray | None = None) -> mujoco.MjData:
+        data = mujoco.MjData(self.model)
+        data.qpos[:] = self.start_qpos if qpos is None else qpos
+        data.ctrl[:] = self._ctrl_for(data.qpos)
+        mujoco.mj_forward(self.model, data)
+        return data
+
+    def _ctrl_for(self, qpos: np.ndarray) -> np.ndarray:
+        """Position-actuator set points that hold ``qpos``."""
+        return qpos[self.model.jnt_qposadr[self.model.actuator_trnid[:, 0]]]
+
+    def to_xml(self, final_qpos: np.ndarray) -> str:
+        """Self-contained MJCF of the scene with keyframes ``start`` and ``final``."""
+        for name, qpos in (("start", self.start_qpos), ("final", final_qpos)):
+            key = self.spec.key(name)
+            if key is None:
+                key = self.spec.add_key(name=name)
+            key.qpos = qpos.tolist()
+            key.ctrl = self._ctrl_for(qpos).tolist()
+            key.mpos = self.model.body_pos[self.model.body_mocapid >= 0].ravel().tolist()
+            key.mquat = self.model.body_quat[self.model.body_mocapid >= 0].ravel().tolist()
+        self.model = self.spec.compile()
+        return str(self.spec.to_xml())
+
+
+def _world(spec: mujoco.MjSpec, s: Scenario) -> None:
+    spec.modelname = f"taskcam_{s.name}"
+    spec.option.timestep = 0.002
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.stat.extent = 4.0
+    spec.stat.center = [0.0, 0.0, 0.8]
+    spec.visual.map.znear = 0.005  # x extent: 2 cm
+    spec.visual.map.zfar = 10.0  # x extent: 40 m
+    spec.visual.global_.offwidth = max(640, s.camera.width)
+    spec.visual.global_.offheight = max(480, s.camera.height)
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+    spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
+    spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
+                     builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+                     rgb1=[0.6, 0.75, 0.9], rgb2=[0.1, 0.15, 0.25], width=64, height=64)
+    spec.add_texture(name="floor", type=mujoco.mjtTexture.mjTEXTURE_2D,
+                     builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+                     rgb1=[0.3, 0.32, 0.35], rgb2=[0.24, 0.26, 0.28], width=256, height=256,
+                     mark=mujoco.mjtMark.mjMARK_EDGE, markrgb=[0.45, 0.45, 0.45])
+    spec.add_material(name="floor", textures=["", "floor"], texrepeat=[8, 8], reflectance=0.0)
+    world = spec.worldbody
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[6, 6, 0.05],
+                   material="floor")
+    world.add_light(name="sun", pos=[0.5, -0.5, 4.0], dir=[-0.1, 0.1, -1.0],
+                    diffuse=[0.6, 0.6, 0.6], castshadow=False)
+
+
+def _workpiece(spec: mujoco.MjSpec, s: Scenario) -> tuple[Target, ...]:
+    wp = mujoco.MjSpec.from_file(str(WORKPIECE_XML))
+    plate = wp.geom("plate")
+    half_x, half_y = float(plate.size[0]), float(plate.size[1])
+    top = float(plate.pos[2] + plate.size[2])
+    hole_depth = float(wp.geom("hole_primary").size[1])
+    listed = {f"hole_{t.name}" for t in s.workpiece.targets}
+    for geom in list(wp.geoms):
+        if geom.name.startswith("hole_") and geom.name not in listed:
+            wp.delete(geom)
+    yaw = math.radians(s.workpiece.yaw_deg)
+    rot = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0],
+                    [0, 0, 1]])
+    origin = np.array([*s.workpiece.position, 0.0])
+    lo, hi = np.array(s.grid.bounds_min), np.array(s.grid.bounds_max)
+    targets = []
+    for i, t in enumerate(s.workpiece.targets):
+        ox, oy = t.offset_m
+        if abs(ox) + t.radius_m > half_x or abs(oy) + t.radius_m > half_y:
+            raise ScenarioError(s.source, f"workpiece.targets[{i}].offset_m", list(t.offset_m),
+                                f"a hole on the plate: |x| + radius <= {half_x}, "
+                                f"|y| + radius <= {half_y}")
+        geom = wp.geom(f"hole_{t.name}")
+        if geom is None:
+            geom = wp.body("workpiece").add_geom(wp.find_default("hole"), name=f"hole_{t.name}")
+        geom.size = [t.radius_m, hole_depth, 0]
+        geom.pos = [ox, oy, top + 0.0005 - hole_depth]
+        position = origin + rot @ np.array([ox, oy, top])
+        if np.any(position < lo) or np.any(position > hi):
+            raise ScenarioError(s.source, f"workpiece.targets[{i}]", position.round(3).tolist(),
+                                f"a target inside the grid bounds {lo.tolist()} to {hi.tolist()}")
+        targets.append(Target(t.name, t.role, f"workpiece/hole_{t.name}", position,
+                              rot @ np.array([0.0, 0.0, 1.0]), t.radius_m, t.st_error_m))
+    frame = spec.worldbody.add_frame(pos=origin.tolist(), quat=yaw_quat(yaw))
+    frame.attach_body(wp.body("workpiece"), "workpiece/", "")
+    return tuple(targets)
+
+
+def _panel(spec: mujoco.MjSpec, s: Scenario) -> None:
+    panel = mujoco.MjSpec.from_file(str(PANEL_XML))
+    frame = spec.worldbody.add_frame(pos=list(s.panel.position),
+                                     quat=yaw_quat(math.radians(s.panel.yaw_deg)))
+    frame.attach_body(panel.body("panel"), "panel/", "")
+
+
+def _obstacles(spec: mujoco.MjSpec, s: Scenario) -> None:
+    for i, o in enumerate(s.obstacles):
+        prims = mujoco.MjSpec.from_file(str(OBSTACLES_XML))
+        prims.geom(o.shape).size = [*o.size, *([0.0] * (3 - len(o.size)))]
+        frame = spec.worldbody.add_frame(pos=list(o.position),
+                                         quat=yaw_quat(math.radians(o.yaw_deg)))
+        frame.attach_body(prims.body(o.shape), f"obstacle{i}/", "")
+
+
+def _robots(spec: mujoco.MjSpec, s: Scenario) -> list[float]:
+    """Attach the robots; returns the start configuration of each, concatenated."""
+    start: list[float] = []
+    for i, base in enumerate(s.base_poses()):
+        robot = mujoco.MjSpec.from_file(str(ROBOT_XML))
+        half = s.camera.baseline_m / 2
+        for side, sign in (("left", -1.0), ("right", 1.0)):
+            cam, site = robot.camera(side), robot.site(f"{side}_optical")
+            cam.fovy = s.camera.fovy_deg
+            cam.resolution = [s.camera.width, s.camera.height]
+            cam.pos = [sign * half, cam.pos[1], cam.pos[2]]
+            site.pos = list(cam.pos)
+        home = robot.key("home")
+        start += [base.x, base.y, math.radians(base.yaw_deg), *list(home.qpos)[3:]]
+        robot.delete(home)  # the scene has keyframes of its own
+        spec.worldbody.add_frame().attach_body(robot.body("base"), f"r{i + 1}/", "")
+    return start
+
+
+def build_scene(s: Scenario) -> Scene:
+    """Compile the scenario's world. Raises ScenarioError for geometry it cannot hold."""
+    spec = mujoco.MjSpec()
+    _world(spec, s)
+    targets = _workpiece(spec, s)
+    _panel(spec, s)
+    _obstacles(spec, s)
+    start = _robots(spec, s)
+    model = spec.compile()
+    robots = []
+    for i in range(s.robots.count):
+        name = f"r{i + 1}"
+        joints = [model.joint(f"{name}/{j}") for j in ROBOT_JOINTS]
+        root = model.body(f"{name}/base").id
+        bodies = frozenset(b for b in range(model.nbody) if _descends(model, b, root))
+        robots.append(Robot(
+            name,
+            np.array([model.jnt_qposadr[j.id] for j in joints]),
+            np.array([model.jnt_dofadr[j.id] for j in joints]),
+            bodies,
+        ))
+    qpos = model.qpos0.copy()
+    for robot, i in zip(robots, range(len(robots)), strict=True):
+        qpos[robot.qpos_adr] = start[9 * i: 9 * i + 9]
+    return Scene(s, spec, model, tuple(robots), targets, qpos)
+
+
+def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:
+    while body > 0:
+        if body == root:
+            return True
+        body = int(model.body_parentid[body])
+    return False
