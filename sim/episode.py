@@ -23,7 +23,15 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mapping import OccupancyGrid, SensorModel, integrate_depth, opencv_pose
+from calibration import locate_hole
+from mapping import (
+    OccupancyGrid,
+    Pinhole,
+    SensorModel,
+    integrate_depth,
+    opencv_pose,
+    world_to_camera,
+)
 from placement import CameraModel, Region, TargetModel, Weights, search, target_points
 
 from .ik import IKResult, solve_camera_pose
@@ -134,18 +142,35 @@ def blocked_rays(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot,
     return count
 
 
-def locate_target(seg: np.ndarray, target_geom: int) -> tuple[bool, list[float] | None, int]:
-    """Whether the target shows in a segmentation image, its centroid pixel and area (px)."""
-    vs, us = np.nonzero(seg == target_geom)
-    if len(us) == 0:
-        return False, None, 0
-    return True, [float(us.mean()), float(vs.mean())], len(us)
+def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: int,
+                T_world_mjcam: np.ndarray, pinhole: Pinhole) -> dict[str, Any]:
+    """Locate the target in the image by LoG and template matching, near where the camera
+    pose puts it; the segmentation image says how much of it is really in view."""
+    T = opencv_pose(T_world_mjcam)
+    in_cam = world_to_camera(T, target.position[None])[0]
+    visible_px = int((seg == target_geom).sum())
+    if in_cam[2] <= 0:
+        return {"seen": False, "pixel": None, "target_pixels": visible_px}
+    expected = pinhole.project(in_cam[None])[0]
+    tilt = max(float(target.normal @ (T[:3, 3] - target.position))
+               / float(np.linalg.norm(T[:3, 3] - target.position)), 0.05)
+    radius_px = pinhole.fy * target.radius / float(in_cam[2])
+    full_area = math.pi * radius_px ** 2 * tilt
+    found = locate_hole(rgb, (float(expected[0]), float(expected[1])),
+                        radius_px * math.sqrt(tilt), search_px=max(3 * radius_px, 10.0))
+    seen = found is not None and visible_px >= 0.5 * full_area
+    return {"seen": seen,
+            "pixel": None if found is None else [found.u, found.v],
+            "expected_pixel": expected.tolist(),
+            "detection_score": None if found is None else found.score,
+            "target_pixels": visible_px, "expected_target_pixels": round(full_area, 1)}
 
 
 class Episode:
     """Runs the stages of one episode on one scenario."""
 
-    def __init__(self, scenario: Scenario, recorder: Recorder | None = None) -> None:
+    def __init__(self, scenario: Scenario) -> None:
+        """Builds the scene: raises ScenarioError for geometry the scenario cannot hold."""
         self.s = scenario
         self.rng = np.random.default_rng(scenario.seed)
         self.timer = Timer()
@@ -154,7 +179,7 @@ class Episode:
         self.model = self.scene.model
         self.data = self.scene.make_data()
         self.grid = new_grid(scenario)
-        self.recorder = recorder or Recorder(None, "")
+        self.recorder = Recorder(None, "")
         self.step = 0
         cam = scenario.camera
         self.camera_model = CameraModel(math.radians(cam.fovy_deg), cam.height, cam.near_m,
@@ -250,13 +275,13 @@ class Episode:
                                        "placed": p.target is not None,
                                        "pose": pose_dict(self.data, robot.camera)}
                 if p.target is not None and p.ik is not None and p.commanded is not None:
-                    seen, pixel, area = locate_target(seg, self.model.geom(p.target.geom).id)
                     row.update({
                         "commanded_pose": {"position": p.commanded.tolist()},
                         "target": p.target.summary(),
                         "rating": p.rating,
                         "ik": p.ik.summary(),
-                        "seen": seen, "pixel": pixel, "target_pixels": area,
+                        **find_target(rgb, seg, p.target, self.model.geom(p.target.geom).id,
+                                      camera_pose(self.data, robot.camera), pinhole),
                     })
                 else:
                     row.update({"seen": False, "pixel": None})
@@ -265,9 +290,11 @@ class Episode:
                 rows.append(row)
         return rows
 
-    def run(self) -> tuple[dict[str, Any], str]:
+    def run(self, recorder: Recorder | None = None) -> tuple[dict[str, Any], str]:
         """All stages; returns ``summary.json``'s content and the scene's MJCF."""
         t0 = time.perf_counter()
+        if recorder is not None:
+            self.recorder = recorder
         targets = self.scene.targets
         self.recorder.targets([t.name for t in targets], np.array([t.position for t in targets]),
                               [t.radius for t in targets])

@@ -92,8 +92,12 @@ def solve_camera_pose(
     errors = camera_errors(model, config.data, site, position, look_at)
     iterations = 0
     while iterations < settings.max_iterations and not _within(errors, settings):
-        velocity = mink.solve_ik(config, tasks, settings.dt, "daqp", damping=settings.damping,
-                                 limits=limits, constraints=constraints)
+        try:
+            velocity = mink.solve_ik(config, tasks, settings.dt, "daqp",
+                                     damping=settings.damping, limits=limits,
+                                     constraints=constraints)
+        except mink.NoSolutionFound:  # infeasible limits: report the residual so far
+            break
         config.integrate_inplace(velocity, settings.dt)
         iterations += 1
         errors = camera_errors(model, config.data, site, position, look_at)

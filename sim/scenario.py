@@ -25,9 +25,10 @@ MAX_ROBOTS = 4
 class ScenarioError(ValueError):
     """An invalid scenario: one line naming file, key, value and what is accepted."""
 
-    def __init__(self, source: str, key: str, value: object, accepted: str) -> None:
+    def __init__(self, source: str, key: str, value: object, accepted: str,
+                 problem: str = "bad value") -> None:
         self.source, self.key, self.value, self.accepted = source, key, value, accepted
-        super().__init__(f"{source}: key '{key}': bad value {value!r}; accepted: {accepted}")
+        super().__init__(f"{source}: key '{key}': {problem} {value!r}; accepted: {accepted}")
 
 
 Check = tuple[Callable[[Any], bool], str]
@@ -200,7 +201,7 @@ class Scenario:
             poses.append(BasePose(
                 cx + self.robots.start_radius_m * math.cos(angle),
                 cy + self.robots.start_radius_m * math.sin(angle),
-                math.degrees(angle + math.pi),
+                math.degrees(math.remainder(angle + math.pi, 2 * math.pi)),
             ))
         return tuple(poses)
 
@@ -270,7 +271,8 @@ def _build(cls: type, table: Mapping[str, Any], prefix: str, source: str) -> Any
     for key in table:
         if key not in fields:
             name = f"{prefix}.{key}" if prefix else key
-            raise ScenarioError(source, name, table[key], "keys " + ", ".join(fields))
+            raise ScenarioError(source, name, table[key], "keys " + ", ".join(fields),
+                                problem="unknown key, with value")
     kwargs = {}
     for name, f in fields.items():
         key = f"{prefix}.{name}" if prefix else name

@@ -226,7 +226,8 @@ def _robots(spec: mujoco.MjSpec, s: Scenario) -> list[float]:
             cam.pos = [sign * half, cam.pos[1], cam.pos[2]]
             site.pos = list(cam.pos)
         home = robot.key("home")
-        start += [base.x, base.y, math.radians(base.yaw_deg), *list(home.qpos)[3:]]
+        yaw = math.remainder(math.radians(base.yaw_deg), 2 * math.pi)  # within the joint's range
+        start += [base.x, base.y, yaw, *list(home.qpos)[3:]]
         robot.delete(home)  # the scene has keyframes of its own
         spec.worldbody.add_frame().attach_body(robot.body("base"), f"r{i + 1}/", "")
     return start

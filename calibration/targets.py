@@ -1,0 +1,100 @@
+"""Circular-hole targets in images: Laplacian-of-Gaussian filtering, then template matching.
+
+A hole is a dark disk on a brighter plate. The scale-normalised LoG response of a
+disk of radius r peaks at its centre for sigma = r / sqrt(2) (sec. 2.2); matching a
+dark-disk template around that peak refines the centre to a fraction of a pixel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class HoleDetection:
+    """A detected hole: centre (u, v) and radius in pixels, template-match score in [-1, 1]."""
+
+    u: float
+    v: float
+    radius_px: float
+    score: float
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """Float32 intensity in [0, 1] of an RGB (h, w, 3) or gray (h, w) uint8 image."""
+    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    return gray.astype(np.float32) / 255.0
+
+
+def log_response(gray: np.ndarray, sigma: float) -> np.ndarray:
+    """Scale-normalised LoG, sigma^2 * laplacian(G_sigma * I): positive on dark blobs."""
+    blurred = cv2.GaussianBlur(gray, (0, 0), sigma)
+    return (sigma ** 2) * cv2.Laplacian(blurred, cv2.CV_32F, ksize=3)
+
+
+def disk_template(radius_px: float, margin: float = 1.0) -> np.ndarray:
+    """A dark disk (0) on a bright square (1), anti-aliased, side about 2 (1 + margin) r."""
+    half = int(math.ceil(radius_px * (1 + margin))) + 1
+    y, x = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float32)
+    return np.clip(np.hypot(x, y) - radius_px + 0.5, 0.0, 1.0)
+
+
+def _subpixel(values: np.ndarray, y: int, x: int) -> tuple[float, float]:
+    """Peak offset (dx, dy) from a parabola through the 3x3 neighbourhood."""
+    def offset(a: float, b: float, c: float) -> float:
+        den = a - 2 * b + c
+        return 0.0 if abs(den) < 1e-12 else float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    h, w = values.shape
+    if not (0 < y < h - 1 and 0 < x < w - 1):
+        return 0.0, 0.0
+    return (offset(values[y, x - 1], values[y, x], values[y, x + 1]),
+            offset(values[y - 1, x], values[y, x], values[y + 1, x]))
+
+
+def detect_holes(image: np.ndarray, radius_px: float, max_count: int = 20,
+                 min_score: float = 0.5) -> list[HoleDetection]:
+    """Dark disks of about ``radius_px`` pixels, best first."""
+    gray = to_gray(image)
+    response = log_response(gray, max(radius_px / math.sqrt(2), 0.7))
+    peaks = (response == cv2.dilate(response, np.ones((5, 5), np.uint8))) & (response > 0.05)
+    ys, xs = np.nonzero(peaks)
+    order = np.argsort(-response[ys, xs])[: 5 * max_count]
+    template = disk_template(radius_px)
+    half = template.shape[0] // 2
+    found: list[HoleDetection] = []
+    for y, x in zip(ys[order], xs[order], strict=True):
+        det = _match(gray, template, half, int(x), int(y), radius_px)
+        if det is None or det.score < min_score:
+            continue
+        if any(math.hypot(det.u - d.u, det.v - d.v) < radius_px for d in found):
+            continue
+        found.append(det)
+    found.sort(key=lambda d: -d.score)
+    return found[:max_count]
+
+
+def _match(gray: np.ndarray, template: np.ndarray, half: int, x: int, y: int,
+           radius_px: float) -> HoleDetection | None:
+    """Template match in a window around (x, y); None if the window leaves the image."""
+    reach = max(2, int(radius_px // 2))
+    x0, y0 = x - half - reach, y - half - reach
+    x1, y1 = x + half + reach + 1, y + half + reach + 1
+    if x0 < 0 or y0 < 0 or x1 > gray.shape[1] or y1 > gray.shape[0]:
+        return None
+    scores = cv2.matchTemplate(gray[y0:y1, x0:x1], template, cv2.TM_CCOEFF_NORMED)
+    _, best, _, (bx, by) = cv2.minMaxLoc(scores)
+    dx, dy = _subpixel(scores, by, bx)
+    return HoleDetection(x0 + half + bx + dx, y0 + half + by + dy, radius_px, float(best))
+
+
+def locate_hole(image: np.ndarray, expected_uv: tuple[float, float], radius_px: float,
+                search_px: float) -> HoleDetection | None:
+    """The detected hole nearest to where it is expected, within ``search_px`` pixels."""
+    near = [d for d in detect_holes(image, radius_px)
+            if math.hypot(d.u - expected_uv[0], d.v - expected_uv[1]) <= search_px]
+    return min(near, key=lambda d: math.hypot(d.u - expected_uv[0], d.v - expected_uv[1]),
+               default=None)

@@ -1,0 +1,88 @@
+"""The ``taskcam`` command line. Exit codes: 0 success, 2 invalid input, 1 other failure."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from .scenario import ScenarioError, load_scenario
+
+EXIT_OK, EXIT_FAILURE, EXIT_INVALID = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_INVALID, f"taskcam: error: {message}\n")
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="taskcam", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    run = sub.add_parser("run", help="run one episode and write its run directory")
+    run.add_argument("scenario", nargs="?", type=Path,
+                     help="scenario TOML file (default: scenarios/default.toml)")
+    run.add_argument("--seed", type=int, help="override the scenario's seed")
+    run.add_argument("--out", type=Path,
+                     help="run directory (default: runs/<scenario>-seed<N>)")
+    run.add_argument("--no-record", action="store_true", help="skip the rerun recording")
+    return parser
+
+
+def _log(message: str) -> None:
+    print(f"taskcam: {message}", file=sys.stderr, flush=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    scenario = load_scenario(args.scenario, args.seed)
+    out: Path = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
+    if out.exists() and not out.is_dir():
+        raise ScenarioError("--out", "out", str(out), "a directory (this is a file)")
+
+    from .episode import Episode  # imports mujoco: after the arguments are known good
+    from .record import Recorder
+
+    episode = Episode(scenario)  # builds the scene: the last check of the input
+    out.mkdir(parents=True, exist_ok=True)
+    recorder = Recorder(None if args.no_record else out / "run.rrd",
+                        recording_id=f"{scenario.name}-seed{scenario.seed}")
+    start = time.perf_counter()
+    _log(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
+         f"{scenario.robots.count} robot(s)")
+    try:
+        summary, xml = episode.run(recorder)
+    finally:
+        recorder.close()
+    (out / "scene.xml").write_text(xml)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    for robot in summary["robots"]:
+        target = robot.get("target", {}).get("name", "-")
+        _log(f"{robot['name']}: placed={robot['placed']} target={target} seen={robot['seen']}")
+    _log(f"wrote {out}/summary.json, scene.xml"
+         f"{'' if args.no_record else ', run.rrd'} in {time.perf_counter() - start:.1f} s")
+    return EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "run":
+            return run(args)
+    except ScenarioError as exc:
+        print(f"taskcam: error: {exc}", file=sys.stderr)
+        return EXIT_INVALID
+    except KeyboardInterrupt:
+        print("taskcam: interrupted", file=sys.stderr)
+        return EXIT_FAILURE
+    except Exception:  # a failure of taskcam itself: show where
+        traceback.print_exc()
+        print("taskcam: failed (see the traceback above)", file=sys.stderr)
+        return EXIT_FAILURE
+    return EXIT_FAILURE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,30 @@
+"""Shared fixtures. Importing sim first chooses the GL backend before mujoco loads."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import sim  # noqa: F401  (GL backend before mujoco)
+
+ROOT = Path(__file__).resolve().parent.parent
+TASKCAM = Path(sys.executable).parent / "taskcam"
+
+
+def run_taskcam(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    """The installed console script, as a user runs it."""
+    return subprocess.run([str(TASKCAM), *args], capture_output=True, text=True,
+                          cwd=cwd, timeout=600)
+
+
+@pytest.fixture(scope="session")
+def default_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    """``taskcam run`` on the default scenario, once per session: (run dir, summary)."""
+    out = tmp_path_factory.mktemp("default_run")
+    done = run_taskcam("run", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    return out, json.loads((out / "summary.json").read_text())
