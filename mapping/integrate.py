@@ -6,8 +6,7 @@ and pixels beyond ``max_range`` observe free space up to ``max_range`` and nothi
 occupied; NaN and non-positive depths observe nothing. Every voxel is updated at most
 once per image, and occupied wins over free.
 
-Rays are sampled every ``resolution / oversample`` metres: a voxel that a ray only
-grazes at a corner may be skipped.
+Rays are traversed exactly (3-D DDA): every voxel a ray passes through is found.
 """
 
 from __future__ import annotations
@@ -16,24 +15,12 @@ import numpy as np
 
 from .camera import Pinhole, camera_to_world
 from .grid import OccupancyGrid
-
-
-def _clip_to_box(origin: np.ndarray, dirs: np.ndarray, length: np.ndarray,
-                 lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Parameter interval [t0, t1] of each ray (unit dirs) inside the box and its length."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / dirs
-        ta, tb = (lo - origin) * inv, (hi - origin) * inv
-    tmin = np.nan_to_num(np.minimum(ta, tb), nan=-np.inf)
-    tmax = np.nan_to_num(np.maximum(ta, tb), nan=np.inf)
-    t0 = np.maximum(tmin.max(axis=1), 0.0)
-    t1 = np.minimum(tmax.min(axis=1), length)
-    return t0, t1
+from .raycast import traverse
 
 
 def integrate_depth(grid: OccupancyGrid, depth: np.ndarray, camera: Pinhole,
-                    T_world_cam: np.ndarray, max_range: float = 4.0, stride: int = 1,
-                    oversample: float = 2.0, chunk: int = 8192) -> tuple[int, int]:
+                    T_world_cam: np.ndarray, max_range: float = 4.0,
+                    stride: int = 1) -> tuple[int, int]:
     """Update ``grid`` with one z-depth image (m); ``T_world_cam`` in OpenCV convention.
 
     Returns the number of voxels marked free and occupied.
@@ -48,7 +35,6 @@ def integrate_depth(grid: OccupancyGrid, depth: np.ndarray, camera: Pinhole,
     hit = dist <= max_range
     dirs_world = (rays / norm[:, None]) @ T_world_cam[:3, :3].T
     origin = T_world_cam[:3, 3]
-    shape = np.array(grid.shape)
     strides = np.array([grid.shape[1] * grid.shape[2], grid.shape[2], 1])
 
     end_points = camera_to_world(T_world_cam, rays[hit] * z[hit, None])
@@ -57,21 +43,11 @@ def integrate_depth(grid: OccupancyGrid, depth: np.ndarray, camera: Pinhole,
     occupied = np.unique(end_idx @ strides)
 
     # Free space: from the camera to just before the end point (or to max_range).
-    length = np.minimum(dist, max_range) - 1e-6
-    t0, t1 = _clip_to_box(origin, dirs_world, length, grid.origin, grid.upper)
-    keep = t1 > t0
-    dirs_world, t0, t1 = dirs_world[keep], t0[keep], t1[keep]
-    step = grid.resolution / oversample
+    length = (np.minimum(dist, max_range) - 1e-6) / grid.resolution
+    _, crossed = traverse(grid.shape, (origin - grid.origin) / grid.resolution, dirs_world,
+                          length)
     seen = np.zeros(grid.log_odds.size, dtype=bool)
-    for s in range(0, len(t0), chunk):
-        d, a, b = dirs_world[s:s + chunk], t0[s:s + chunk], t1[s:s + chunk]
-        count = int(np.ceil((b - a).max() / step)) + 1
-        t = a[:, None] + step * np.arange(count, dtype=np.float32)[None, :]
-        t = np.minimum(t, b[:, None])  # the last sample lands on the segment's end
-        rel = ((origin - grid.origin) / grid.resolution).astype(np.float32)
-        idx = np.floor(rel + t[..., None] * (d / grid.resolution).astype(np.float32)[:, None, :])
-        idx = np.clip(idx.astype(np.int64), 0, shape - 1)
-        seen[idx @ strides] = True
+    seen[crossed] = True
     seen[occupied] = False
     free = np.flatnonzero(seen)
     grid.update(free, occupied)
