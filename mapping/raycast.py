@@ -1,6 +1,11 @@
-"""Exact voxel traversal of many rays at once (3-D DDA, Amanatides and Woo, 1987)."""
+"""Exact voxel traversal of many rays at once (3-D DDA, Amanatides and Woo, 1987).
+
+Coordinates are in grid units: voxel (i, j, k) spans [i, i + 1) x [j, j + 1) x [k, k + 1).
+"""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -17,13 +22,13 @@ def clip_to_box(origins: np.ndarray, dirs: np.ndarray, length: np.ndarray,
     return np.maximum(tmin.max(axis=1), 0.0), np.minimum(tmax.min(axis=1), length)
 
 
-def traverse(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
-             lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every voxel each segment crosses, in grid units (voxel i spans [i, i + 1)).
+def _walk(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
+          lengths: np.ndarray, stop: np.ndarray | None = None
+          ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Yield (ray index, flat voxel index) for every ray still going, one voxel per step.
 
-    ``origins`` (n, 3) or (3,), ``dirs`` (n, 3) unit vectors, ``lengths`` (n,). Returns
-    (ray index, flat voxel index) pairs, in order along each ray. A segment that only
-    touches an edge or a corner may or may not include the voxels meeting there.
+    A ray ends when its segment does, when it leaves the grid, or, with ``stop`` (flat
+    bool per voxel), right after it enters a voxel where ``stop`` is True.
     """
     dims = np.array(shape)
     dirs = np.asarray(dirs, dtype=float)
@@ -31,28 +36,56 @@ def traverse(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
     t0, t1 = clip_to_box(origins, dirs, np.asarray(lengths, float), np.zeros(3), dims)
     ray = np.flatnonzero(t1 > t0)
     if len(ray) == 0:
-        return np.empty(0, np.int64), np.empty(0, np.int64)
+        return
     d, t_end = dirs[ray], t1[ray]
     p = origins[ray] + t0[ray, None] * d
     idx = np.clip(np.floor(p).astype(np.int64), 0, dims - 1)
     step = np.sign(d).astype(np.int64)
     with np.errstate(divide="ignore", invalid="ignore"):
         t_delta = np.where(step != 0, 1.0 / np.abs(d), np.inf)
-        boundary = idx + (step > 0)
-        t_max = np.where(step != 0, t0[ray, None] + (boundary - p) / d, np.inf)
+        t_max = np.where(step != 0, t0[ray, None] + (idx + (step > 0) - p) / d, np.inf)
     strides = np.array([shape[1] * shape[2], shape[2], 1])
-    rays_out, voxels_out = [], []
-    rows = np.arange(len(ray))
+    flat = idx @ strides
+    flat_step = step * strides
     while len(ray):
-        rays_out.append(ray)
-        voxels_out.append(idx @ strides)
+        yield ray, flat
+        rows = np.arange(len(ray))
         axis = np.argmin(t_max, axis=1)
         t_exit = t_max[rows, axis]
         idx[rows, axis] += step[rows, axis]
         t_max[rows, axis] += t_delta[rows, axis]
-        go = (t_exit < t_end) & (idx[rows, axis] >= 0) & (idx[rows, axis] < dims[axis])
+        flat = flat + flat_step[rows, axis]
+        moved = idx[rows, axis]
+        go = (t_exit < t_end) & (moved >= 0) & (moved < dims[axis])
+        if stop is not None:
+            go &= ~stop[flat - flat_step[rows, axis]]
         if not go.all():
-            ray, idx, t_max, step, t_delta, t_end = (
-                ray[go], idx[go], t_max[go], step[go], t_delta[go], t_end[go])
-            rows = np.arange(len(ray))
-    return np.concatenate(rays_out), np.concatenate(voxels_out)
+            ray, idx, t_max, step, t_delta, t_end, flat, flat_step = (
+                ray[go], idx[go], t_max[go], step[go], t_delta[go], t_end[go], flat[go],
+                flat_step[go])
+
+
+def traverse(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
+             lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every voxel each segment crosses: (ray index, flat voxel index) pairs.
+
+    ``origins`` (n, 3) or (3,), ``dirs`` (n, 3) unit vectors, ``lengths`` (n,). A
+    segment that only touches an edge or a corner may or may not include the voxels
+    meeting there.
+    """
+    steps = list(_walk(shape, origins, dirs, lengths))
+    if not steps:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    return np.concatenate([r for r, _ in steps]), np.concatenate([v for _, v in steps])
+
+
+def first_hits(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
+               lengths: np.ndarray, blocked: np.ndarray) -> np.ndarray:
+    """Boolean per ray: does its segment enter a voxel where ``blocked`` (flat) is True?
+
+    Each ray stops at its first blocked voxel, so cluttered scenes cost less.
+    """
+    hit = np.zeros(len(dirs), dtype=bool)
+    for ray, flat in _walk(shape, origins, dirs, lengths, stop=blocked):
+        hit[ray[blocked[flat]]] = True
+    return hit

@@ -36,7 +36,7 @@ class RatingField:
         return order[total[order] > 0]
 
 
-def target_points(target: TargetModel, rim: int = 8) -> np.ndarray:
+def target_points(target: TargetModel, rim: int = 4) -> np.ndarray:
     """The target's centre and ``rim`` points at 0.9 of its radius, 1 mm above its face."""
     n = target.normal / np.linalg.norm(target.normal)
     helper = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])

@@ -1,49 +1,33 @@
-"""Lines of sight through an occupancy grid."""
+"""Lines of sight through an occupancy grid, by exact voxel traversal."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from mapping import OccupancyGrid
-
-
-def blocking_mask(grid: OccupancyGrid, occluding: float = 0.5) -> np.ndarray:
-    """Voxels with P >= ``occluding``, padded by one voxel of blocking (unknown) border."""
-    padded = np.ones(tuple(n + 2 for n in grid.shape), dtype=bool)
-    padded[1:-1, 1:-1, 1:-1] = grid.probability() >= occluding
-    return padded
+from mapping import OccupancyGrid, first_hits
 
 
 def line_of_sight(grid: OccupancyGrid, cameras: np.ndarray, points: np.ndarray,
                   occluding: float = 0.5, stop_short: float = 0.0,
-                  chunk: int = 4096) -> np.ndarray:
+                  chunk: int = 65536) -> np.ndarray:
     """Boolean (n, k): is each of ``points`` (k, 3) seen from each camera (n, 3)?
 
     A line is blocked where it passes through a voxel with P >= ``occluding`` (unknown
     voxels block at the default 0.5). The last ``stop_short`` metres before each point
-    are not checked (the voxels holding the point itself). Space outside the grid
-    counts as unknown. Lines are sampled every half voxel.
+    are not checked (the voxels holding the point itself). A line that leaves the grid
+    is blocked: outside is unknown.
     """
-    padded = blocking_mask(grid, occluding)
-    flat = padded.reshape(-1)
-    dims = np.array(padded.shape)
-    step = 0.5  # voxels
-    cams = ((np.asarray(cameras) - grid.origin) / grid.resolution).astype(np.float32) + 1.0
-    out = np.empty((len(cams), len(points)), dtype=bool)
-    for k, point in enumerate(np.asarray(points)):
-        p = ((point - grid.origin) / grid.resolution).astype(np.float32) + 1.0
-        for s in range(0, len(cams), chunk):
-            c = cams[s:s + chunk]
-            delta = p - c  # (c, 3) in voxels
-            length = np.linalg.norm(delta, axis=1)
-            span = np.maximum(length - stop_short / grid.resolution, 0.0)
-            count = int(np.ceil(span.max() / step)) + 1 if len(span) else 1
-            t = np.minimum(np.arange(count, dtype=np.float32)[None, :] * step, span[:, None])
-            t /= np.maximum(length, 1e-6)[:, None]
-            index = np.zeros(t.shape, dtype=np.int64)
-            for axis in range(3):
-                coord = np.floor(c[:, axis, None] + t * delta[:, axis, None]).astype(np.int64)
-                np.clip(coord, 0, dims[axis] - 1, out=coord)
-                index = index * dims[axis] + coord
-            out[s:s + chunk, k] = ~flat[index].any(axis=1)
-    return out
+    blocked = (grid.probability() >= occluding).reshape(-1)
+    cameras, points = np.atleast_2d(cameras), np.atleast_2d(points)
+    starts = np.repeat(cameras, len(points), axis=0)
+    ends = np.tile(points, (len(cameras), 1))
+    delta = ends - starts
+    length = np.linalg.norm(delta, axis=1)
+    dirs = delta / np.maximum(length, 1e-12)[:, None]
+    span = np.maximum(length - stop_short, 0.0) / grid.resolution
+    origins = (starts - grid.origin) / grid.resolution
+    seen = grid.inside(grid.index(starts)) & grid.inside(grid.index(ends))
+    for s in range(0, len(starts), chunk):
+        seen[s:s + chunk] &= ~first_hits(grid.shape, origins[s:s + chunk], dirs[s:s + chunk],
+                                         span[s:s + chunk], blocked)
+    return seen.reshape(len(cameras), len(points))

@@ -1,0 +1,152 @@
+"""Rating function terms (eq. 1-4), lines of sight and search, against hand calculations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mapping import OccupancyGrid, logit
+from placement import (
+    CameraModel,
+    TargetModel,
+    Weights,
+    angular_visibility,
+    depth_of_field,
+    line_of_sight,
+    rate,
+    resolution,
+    search,
+)
+
+CAMERA = CameraModel(fov=math.radians(60), pixels=480, near=0.4, far=1.5)
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def free_grid(lo=(-1.0, -1.0, 0.0), hi=(1.0, 1.0, 2.0), res=0.1) -> OccupancyGrid:
+    g = OccupancyGrid.from_bounds(np.array(lo), np.array(hi), res)
+    g.log_odds[:] = logit(0.01)
+    return g
+
+
+def occupy(g: OccupancyGrid, lo, hi, p: float = 0.99) -> None:
+    """Set voxels whose centres lie in the box [lo, hi] to probability ``p``."""
+    c = g.centers()
+    inside = np.all((c >= np.array(lo)) & (c <= np.array(hi)), axis=-1)
+    g.log_odds[inside] = logit(p)
+
+
+def test_resolution_eq2_and_eq4_by_hand():
+    d = np.array([1.0])
+    R = 2 * 1.0 * math.tan(math.radians(30)) / 480  # 0.0024056 m per pixel
+    assert resolution(d, CAMERA)[0] == pytest.approx(1 / R)
+    assert resolution(d, CAMERA, st_error=0.001)[0] == pytest.approx(1 / (R + 0.001))
+    assert resolution(np.array([2.0]), CAMERA)[0] == pytest.approx(0.5 / R)
+
+
+def test_depth_of_field_is_binary_and_inclusive():
+    d = np.array([0.39, 0.4, 1.0, 1.5, 1.51])
+    assert depth_of_field(d, CAMERA).tolist() == [0, 1, 1, 1, 0]
+
+
+def test_angular_visibility_eq3():
+    t = TargetModel("t", np.zeros(3), UP, 0.02)
+    above = np.array([[0, 0, 1.0]])
+    sixty = np.array([[math.sin(math.radians(60)), 0, math.cos(math.radians(60))]])
+    below = np.array([[0.3, 0, -0.1]])
+    grazing = np.array([[1.0, 0, 0]])
+    assert angular_visibility(above, t)[0] == pytest.approx(1.0)
+    assert angular_visibility(sixty, t)[0] == pytest.approx(0.5)
+    assert angular_visibility(below, t)[0] == 0.0
+    assert angular_visibility(grazing, t)[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_rate_is_the_weighted_product():
+    t = TargetModel("t", np.zeros(3), UP, 0.02)
+    pos = np.array([[0.3, 0.0, 0.4], [0.0, 0.0, 2.0]])
+    tfv, occ = np.array([0.8, 1.0]), np.array([0.02, 0.0])
+    r = rate(pos, t, CAMERA, tfv, occ, Weights(1, 2, 0.5, 3))
+    d = np.linalg.norm(pos, axis=1)
+    expected0 = 1 * resolution(d, CAMERA)[0] ** 2 * 0.8 ** 0.5 * (0.4 / 0.5) ** 3 * 0.98
+    assert r.total[0] == pytest.approx(expected0)
+    assert r.total[1] == 0.0  # 2 m is beyond the depth of field
+    unweighted = rate(pos, t, CAMERA, tfv, occ, Weights(0, 0, 0, 0))
+    assert unweighted.total.tolist() == pytest.approx([0.98, 1.0])
+
+
+def test_line_of_sight_through_a_wall():
+    g = free_grid()
+    occupy(g, (-0.05, -1, 0), (0.05, 1, 2))  # a wall in the plane x = 0
+    cams = np.array([[-0.5, 0.0, 1.0], [0.5, 0.3, 1.0]])
+    points = np.array([[0.5, 0.0, 0.5], [-0.5, 0.2, 0.5]])
+    seen = line_of_sight(g, cams, points)
+    assert seen.tolist() == [[False, True], [True, False]]
+
+
+def test_line_of_sight_unknown_blocks_and_outside_is_unknown():
+    g = free_grid()
+    occupy(g, (0.2, -0.2, 0.9), (0.4, 0.2, 1.1), p=0.5)  # an unknown pocket
+    cam, point = np.array([[0.0, 0.0, 1.0]]), np.array([[0.6, 0.0, 1.0]])
+    assert not line_of_sight(g, cam, point)[0, 0]
+    assert line_of_sight(g, cam, point, occluding=0.6)[0, 0]
+    assert not line_of_sight(g, cam, np.array([[0.0, 0.0, 3.0]]))[0, 0]  # leaves the grid
+
+
+def test_line_of_sight_matches_brute_force_on_random_clutter():
+    """Against slab clipping of every line with every blocked voxel's box."""
+    rng = np.random.default_rng(4)
+    g = free_grid(res=0.1)
+    blocked = rng.random(g.shape) < 0.04
+    g.log_odds[blocked] = logit(0.9)
+    box_lo = g.origin + np.argwhere(blocked) * g.resolution
+    box_hi = box_lo + g.resolution
+    cams = rng.uniform([-0.9, -0.9, 0.1], [0.9, 0.9, 1.9], (300, 3))
+    points = rng.uniform([-0.9, -0.9, 0.1], [0.9, 0.9, 1.9], (3, 3))
+    ours = line_of_sight(g, cams, points)
+    for i, c in enumerate(cams):
+        for k, p in enumerate(points):
+            d = p - c
+            with np.errstate(divide="ignore"):
+                ta, tb = (box_lo - c) / d, (box_hi - c) / d
+            t0 = np.maximum(np.minimum(ta, tb).max(axis=1), 0.0)
+            t1 = np.minimum(np.maximum(ta, tb).min(axis=1), 1.0)
+            overlap = (t1 - t0).max() * np.linalg.norm(d)  # metres inside a blocked voxel
+            if abs(overlap) > 1e-9:  # not merely touching an edge or corner
+                assert ours[i, k] == (overlap < 0), (i, k, overlap)
+
+
+def test_search_avoids_the_occluded_optimum():
+    """Unoccluded, the best view of a target facing up is straight above at the near
+    limit; a block over it moves the best view aside, to a visible position."""
+    target = TargetModel("t", np.array([0.0, 0.0, 0.2]), UP, 0.02)
+    g = free_grid(res=0.05)
+    occupy(g, (-1, -1, 0), (1, 1, 0.2))  # the table top
+    clear = search(g, [target], CAMERA)
+    best = clear.ratings.positions[clear.ranked()[0]]
+    assert best[:2] == pytest.approx([0, 0], abs=0.05)
+    assert np.linalg.norm(best - target.position) == pytest.approx(0.4, abs=0.05)
+    occupy(g, (-0.15, -1, 0.5), (0.15, 1, 0.6))  # a beam over the target
+    field = search(g, [target], CAMERA)
+    i = field.ranked()[0]
+    best = field.ratings.positions[i]
+    assert abs(best[0]) > 0.1
+    assert field.ratings.tfv[i] == 1.0
+    # the best is the true maximum of RF over all candidates (brute force)
+    assert field.ratings.total[i] == field.ratings.total.max()
+
+
+def test_search_switches_to_a_secondary_target():
+    primary = TargetModel("p", np.array([0.0, 0.0, 0.2]), UP, 0.02)
+    secondary = TargetModel("s", np.array([0.5, 0.0, 0.2]), UP, 0.02, st_error=0.0005)
+    g = free_grid(res=0.05)
+    occupy(g, (-1, -1, 0), (1, 1, 0.2))
+    open_field = search(g, [primary, secondary], CAMERA)
+    assert open_field.target[open_field.ranked()[0]] == 0  # primary wins: no ST error
+    occupy(g, (-0.2, -0.2, 0.25), (0.2, 0.2, 1.6))  # a cover over the primary only
+    covered = search(g, [primary, secondary], CAMERA)
+    i = covered.ranked()[0]
+    assert covered.target[i] == 1
+    d = np.linalg.norm(covered.ratings.positions[i] - secondary.position)
+    R = 2 * d * math.tan(CAMERA.fov / 2) / CAMERA.pixels + 0.0005
+    assert covered.ratings.resolution[i] == pytest.approx(1 / R)
