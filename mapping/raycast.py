@@ -41,7 +41,7 @@ def _walk(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
     p = origins[ray] + t0[ray, None] * d
     idx = np.clip(np.floor(p).astype(np.int64), 0, dims - 1)
     step = np.sign(d).astype(np.int64)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t_delta = np.where(step != 0, 1.0 / np.abs(d), np.inf)
         t_max = np.where(step != 0, t0[ray, None] + (idx + (step > 0) - p) / d, np.inf)
     strides = np.array([shape[1] * shape[2], shape[2], 1])

@@ -57,7 +57,7 @@ def resolve_gl_backend(environ: dict[str, str] | None = None) -> str:
     chosen = env.get("MUJOCO_GL")
     if chosen:
         return chosen
-    if "mujoco" in sys.modules:
+    if environ is None and "mujoco" in sys.modules:
         raise GLError("mujoco was imported before the GL backend was chosen; import sim first")
     for backend in BACKENDS:
         if _loadable(backend) and _context_works(backend):

@@ -21,6 +21,7 @@ ROBOT_JOINTS = (
     "shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3",
 )
 BASE_JOINTS = ROBOT_JOINTS[:3]
+HOLE_LIFT = 0.0005  # m: a hole's dark face lies this far above the plate (no z-fighting)
 # Maximum joint speeds (m/s, rad/s): UR5e arm joints 180 deg/s; a slow mobile base.
 JOINT_SPEEDS = dict.fromkeys(ROBOT_JOINTS[3:], math.pi) | {
     "base_x": 0.5, "base_y": 0.5, "base_yaw": 1.0,
@@ -39,7 +40,7 @@ class Target:
     name: str
     role: str
     geom: str  # geom name in the compiled model
-    position: np.ndarray  # centre of the hole's mouth
+    position: np.ndarray  # centre of the hole's visible face
     normal: np.ndarray  # unit, pointing out of the plate
     radius: float
     st_error: float
@@ -185,8 +186,8 @@ def _workpiece(spec: mujoco.MjSpec, s: Scenario) -> tuple[Target, ...]:
         if geom is None:
             geom = wp.body("workpiece").add_geom(wp.find_default("hole"), name=f"hole_{t.name}")
         geom.size = [t.radius_m, hole_depth, 0]
-        geom.pos = [ox, oy, top + 0.0005 - hole_depth]
-        position = origin + rot @ np.array([ox, oy, top])
+        geom.pos = [ox, oy, top + HOLE_LIFT - hole_depth]
+        position = origin + rot @ np.array([ox, oy, top + HOLE_LIFT])
         if np.any(position < lo) or np.any(position > hi):
             raise ScenarioError(s.source, f"workpiece.targets[{i}]", position.round(3).tolist(),
                                 f"a target inside the grid bounds {lo.tolist()} to {hi.tolist()}")

@@ -1,0 +1,82 @@
+"""Hole detection by LoG and template matching, on drawn and on rendered images."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from calibration import detect_holes, disk_template, locate_hole, log_response, to_gray
+from mapping import Pinhole, opencv_pose, world_to_camera
+from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
+from sim.ik import solve_camera_pose
+
+
+def _disk_image(u: float, v: float, r: float, shape=(240, 320), noise: float = 0.0,
+                seed: int = 0) -> np.ndarray:
+    img = np.full(shape, 190, np.uint8)
+    cv2.circle(img, (round(u * 256), round(v * 256)), round(r * 256), 15, -1,
+               lineType=cv2.LINE_AA, shift=8)
+    if noise:
+        rng = np.random.default_rng(seed)
+        img = np.clip(img + rng.normal(0, noise, shape), 0, 255).astype(np.uint8)
+    return img
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(60, 260), st.floats(60, 180), st.floats(4, 20))
+def test_subpixel_centre_of_a_drawn_disk(u, v, r):
+    found = detect_holes(_disk_image(u, v, r), r)
+    assert found, "no detection"
+    assert math.hypot(found[0].u - u, found[0].v - v) < 0.25
+
+
+def test_several_disks_and_noise():
+    img = _disk_image(80, 60, 10, noise=8.0)
+    cv2.circle(img, (240, 170), 10, 15, -1, lineType=cv2.LINE_AA)
+    found = detect_holes(img, 10)
+    centres = sorted((round(d.u), round(d.v)) for d in found[:2])
+    assert centres == [(80, 60), (240, 170)]
+    assert all(d.score > 0.8 for d in found[:2])
+
+
+def test_log_is_positive_on_dark_blobs_and_template_is_dark_inside():
+    gray = to_gray(_disk_image(100, 100, 8))
+    response = log_response(gray, 8 / math.sqrt(2))
+    assert response[100, 100] > 0 and response[100, 100] == response.max()
+    t = disk_template(5.0)
+    c = t.shape[0] // 2
+    assert t[c, c] == 0.0 and t[0, 0] == 1.0
+
+
+def test_locate_hole_ignores_far_detections():
+    img = _disk_image(80, 60, 10)
+    assert locate_hole(img, (82, 61), 10, search_px=10) is not None
+    assert locate_hole(img, (250, 200), 10, search_px=10) is None
+
+
+def test_rendered_target_found_where_the_camera_model_projects_it():
+    """World point -> pixel by the pinhole model; the image detection must agree."""
+    scene = build_scene(load_scenario())
+    robot, target = scene.robots[0], scene.primary
+    goal = target.position + np.array([-0.35, -0.1, 0.45])
+    ik = solve_camera_pose(scene.model, scene.start_qpos, robot, target.position, goal)
+    data = scene.make_data(ik.qpos)
+    pinhole: Pinhole = camera_pinhole(scene.model, robot.camera)
+    with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
+        rgb = renderer.rgb(data, robot.camera)
+    in_cam = world_to_camera(opencv_pose(camera_pose(data, robot.camera)), target.position[None])
+    expected = pinhole.project(in_cam)[0]
+    radius_px = pinhole.fy * target.radius / in_cam[0, 2]
+    found = locate_hole(rgb, tuple(expected), radius_px, search_px=3 * radius_px)
+    assert found is not None
+    assert math.hypot(found.u - expected[0], found.v - expected[1]) < 1.0
+    assert found.score > 0.7
+    secondary = next(t for t in scene.targets if t.role == "secondary")
+    other = pinhole.project(world_to_camera(opencv_pose(camera_pose(data, robot.camera)),
+                                            secondary.position[None]))[0]
+    assert math.hypot(found.u - other[0], found.v - other[1]) > 2 * radius_px
