@@ -38,7 +38,7 @@ def log_response(gray: np.ndarray, sigma: float) -> np.ndarray:
 
 def disk_template(radius_px: float, margin: float = 1.0) -> np.ndarray:
     """A dark disk (0) on a bright square (1), anti-aliased, side about 2 (1 + margin) r."""
-    half = int(math.ceil(radius_px * (1 + margin))) + 1
+    half = math.ceil(radius_px * (1 + margin)) + 1
     y, x = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float32)
     return np.clip(np.hypot(x, y) - float(radius_px) + 0.5, 0.0, 1.0).astype(np.float32)
 

@@ -13,7 +13,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class CameraModel:
-    """What the rating needs of a camera: field of view (rad) over ``pixels``, depth of field (m)."""
+    """A camera as the rating sees it: field of view (rad) over ``pixels``; depth of field (m)."""
 
     fov: float
     pixels: int

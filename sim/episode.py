@@ -99,8 +99,8 @@ def scan_points(target: np.ndarray, views: int, spread: float) -> np.ndarray:
 
 
 def _collision_geoms(model: mujoco.MjModel, bodies: frozenset[int]) -> list[int]:
-    return [g for g in range(model.ngeom)
-            if model.geom_bodyid[g] in bodies and (model.geom_contype[g] or model.geom_conaffinity[g])]
+    return [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies
+            and (model.geom_contype[g] or model.geom_conaffinity[g])]
 
 
 def clearance(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot,
@@ -299,7 +299,8 @@ class Episode:
         self.recorder.targets([t.name for t in targets], np.array([t.position for t in targets]),
                               [t.radius for t in targets])
         mapping = self.scan()
-        placements, taken = [], []
+        placements: list[Placement] = []
+        taken: list[np.ndarray] = []
         for robot in self.scene.robots:
             self._tick()
             p = self.place(robot, taken)

@@ -251,7 +251,8 @@ def _convert(tp: Any, value: Any, key: str, source: str) -> Any:
             raise bad()
         return _build(typing.cast(type, tp), value, key, source)
     if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if not number or not math.isfinite(value):
             raise bad()
         return float(value)
     if tp is int:

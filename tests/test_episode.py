@@ -48,7 +48,7 @@ def test_every_robot_sees_its_target(default_run):
 
 def test_reported_pose_matches_the_named_camera_in_scene_xml(default_run):
     out, summary = default_run
-    model, data = _final(out)
+    _, data = _final(out)
     for robot in summary["robots"]:
         cam = data.camera(robot["camera"])
         assert np.linalg.norm(cam.xpos - robot["pose"]["position"]) < 1e-3
