@@ -1,20 +1,21 @@
 """Occupancy mapping: voxel grid, sensor model, depth integration. Free of MuJoCo."""
 
 from .camera import MUJOCO_TO_OPENCV, Pinhole, camera_to_world, opencv_pose, world_to_camera
-from .grid import OccupancyGrid, SensorModel, logit
+from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit
 from .integrate import integrate_depth
-from .raycast import clip_to_box, first_hits, traverse
+from .raycast import first_hits, mark_free, traverse
 
 __all__ = [
+    "LOG_ODDS_SCALE",
     "MUJOCO_TO_OPENCV",
     "OccupancyGrid",
     "Pinhole",
     "SensorModel",
     "camera_to_world",
-    "clip_to_box",
     "first_hits",
     "integrate_depth",
     "logit",
+    "mark_free",
     "opencv_pose",
     "traverse",
     "world_to_camera",

@@ -1,91 +1,178 @@
-"""Exact voxel traversal of many rays at once (3-D DDA, Amanatides and Woo, 1987).
+"""Exact voxel traversal of many rays (3-D DDA, Amanatides and Woo, 1987), compiled.
 
-Coordinates are in grid units: voxel (i, j, k) spans [i, i + 1) x [j, j + 1) x [k, k + 1).
+Coordinates are in grid units: voxel (i, j, k) spans [i, i + 1) x [j, j + 1) x [k, k + 1),
+and flat indices are C order. Directions are unit vectors in grid units; lengths are in
+voxels. A segment that only touches an edge or a corner of a voxel may or may not count
+as crossing it. Kernels run in parallel over rays (numba); their results do not depend
+on the thread count.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
+import numba as nb
 import numpy as np
 
 
-def clip_to_box(origins: np.ndarray, dirs: np.ndarray, length: np.ndarray,
-                lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Parameter interval [t0, t1] of each segment ``origin + t dir``, t in [0, length],
-    inside the box; empty where t1 <= t0. ``dirs`` need not be unit."""
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        inv = 1.0 / dirs
-        ta, tb = (lo - origins) * inv, (hi - origins) * inv
-    tmin = np.nan_to_num(np.minimum(ta, tb), nan=-np.inf)
-    tmax = np.nan_to_num(np.maximum(ta, tb), nan=np.inf)
-    return np.maximum(tmin.max(axis=1), 0.0), np.minimum(tmax.min(axis=1), length)
+@nb.njit(cache=True, inline="always")
+def _clip(o0: float, o1: float, o2: float, d0: float, d1: float, d2: float, length: float,
+          n0: int, n1: int, n2: int) -> tuple[float, float]:
+    """Parameter interval [t0, t1] of the segment inside the box [0, n)."""
+    t0, t1 = 0.0, length
+    for o, d, n in ((o0, d0, n0), (o1, d1, n1), (o2, d2, n2)):
+        if d == 0.0:
+            if o < 0.0 or o >= n:
+                return 1.0, 0.0
+            continue
+        a, b = (0.0 - o) / d, (n - o) / d
+        if a > b:
+            a, b = b, a
+        t0, t1 = max(t0, a), min(t1, b)
+    return t0, t1
 
 
-def _walk(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
-          lengths: np.ndarray, stop: np.ndarray | None = None
-          ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """Yield (ray index, flat voxel index) for every ray still going, one voxel per step.
+@nb.njit(cache=True, inline="always")
+def _start(o: float, d: float, t0: float, n: int) -> tuple[int, int, float, float]:
+    """Voxel index, step, first boundary crossing and crossing spacing along one axis."""
+    i = int(np.floor(o + t0 * d))
+    i = min(max(i, 0), n - 1)
+    if d > 0.0:
+        return i, 1, t0 + (i + 1 - (o + t0 * d)) / d, 1.0 / d
+    if d < 0.0:
+        return i, -1, t0 + (i - (o + t0 * d)) / d, -1.0 / d
+    return i, 0, np.inf, np.inf
 
-    A ray ends when its segment does, when it leaves the grid, or, with ``stop`` (flat
-    bool per voxel), right after it enters a voxel where ``stop`` is True.
-    """
-    dims = np.array(shape)
-    dirs = np.asarray(dirs, dtype=float)
-    origins = np.broadcast_to(np.asarray(origins, dtype=float), dirs.shape)
-    t0, t1 = clip_to_box(origins, dirs, np.asarray(lengths, float), np.zeros(3), dims)
-    ray = np.flatnonzero(t1 > t0)
-    if len(ray) == 0:
-        return
-    d, t_end = dirs[ray], t1[ray]
-    p = origins[ray] + t0[ray, None] * d
-    idx = np.clip(np.floor(p).astype(np.int64), 0, dims - 1)
-    step = np.sign(d).astype(np.int64)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        t_delta = np.where(step != 0, 1.0 / np.abs(d), np.inf)
-        t_max = np.where(step != 0, t0[ray, None] + (idx + (step > 0) - p) / d, np.inf)
-    strides = np.array([shape[1] * shape[2], shape[2], 1])
-    flat = idx @ strides
-    flat_step = step * strides
-    while len(ray):
-        yield ray, flat
-        rows = np.arange(len(ray))
-        axis = np.argmin(t_max, axis=1)
-        t_exit = t_max[rows, axis]
-        idx[rows, axis] += step[rows, axis]
-        t_max[rows, axis] += t_delta[rows, axis]
-        flat = flat + flat_step[rows, axis]
-        moved = idx[rows, axis]
-        go = (t_exit < t_end) & (moved >= 0) & (moved < dims[axis])
-        if stop is not None:
-            go &= ~stop[flat - flat_step[rows, axis]]
-        if not go.all():
-            ray, idx, t_max, step, t_delta, t_end, flat, flat_step = (
-                ray[go], idx[go], t_max[go], step[go], t_delta[go], t_end[go], flat[go],
-                flat_step[go])
+
+@nb.njit(cache=True)
+def _walk(o: np.ndarray, d: np.ndarray, length: float, shape: tuple[int, int, int],
+          out: np.ndarray, stop: np.ndarray) -> int:
+    """Write the flat indices a segment crosses into ``out``; return how many. With a
+    non-empty ``stop`` (flat bool), end after the first voxel where it is True."""
+    n0, n1, n2 = shape
+    t0, t1 = _clip(o[0], o[1], o[2], d[0], d[1], d[2], length, n0, n1, n2)
+    if t1 <= t0:
+        return 0
+    i, s0, m0, dt0 = _start(o[0], d[0], t0, n0)
+    j, s1, m1, dt1 = _start(o[1], d[1], t0, n1)
+    k, s2, m2, dt2 = _start(o[2], d[2], t0, n2)
+    count = 0
+    check = len(stop) > 0
+    while True:
+        v = (i * n1 + j) * n2 + k
+        out[count] = v
+        count += 1
+        if check and stop[v]:
+            break
+        if m0 <= m1 and m0 <= m2:
+            if m0 >= t1:
+                break
+            i += s0
+            m0 += dt0
+            if i < 0 or i >= n0:
+                break
+        elif m1 <= m2:
+            if m1 >= t1:
+                break
+            j += s1
+            m1 += dt1
+            if j < 0 or j >= n1:
+                break
+        else:
+            if m2 >= t1:
+                break
+            k += s2
+            m2 += dt2
+            if k < 0 or k >= n2:
+                break
+    return count
+
+
+def _max_steps(shape: tuple[int, int, int]) -> int:
+    return shape[0] + shape[1] + shape[2] + 3
+
+
+CHUNK = 512  # rays per parallel work item
+
+
+def _prepare(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
+             lengths: np.ndarray) -> tuple[tuple[int, int, int], np.ndarray, np.ndarray,
+                                           np.ndarray]:
+    dirs = np.ascontiguousarray(dirs, dtype=np.float64).reshape(-1, 3)
+    origins = np.ascontiguousarray(np.broadcast_to(origins, dirs.shape), dtype=np.float64)
+    lengths = np.ascontiguousarray(np.broadcast_to(lengths, len(dirs)), dtype=np.float64)
+    return (int(shape[0]), int(shape[1]), int(shape[2])), origins, dirs, lengths
+
+
+@nb.njit(cache=True)
+def _traverse(origins: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
+              shape: tuple[int, int, int], max_steps: int) -> tuple[np.ndarray, np.ndarray]:
+    n = len(dirs)
+    counts = np.zeros(n, dtype=np.int64)
+    buf = np.empty(max_steps, dtype=np.int64)
+    no_stop = np.zeros(0, dtype=np.bool_)
+    for r in range(n):
+        counts[r] = _walk(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
+    rays = np.empty(counts.sum(), dtype=np.int64)
+    voxels = np.empty(counts.sum(), dtype=np.int64)
+    at = 0
+    for r in range(n):
+        c = _walk(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
+        rays[at:at + c] = r
+        voxels[at:at + c] = buf[:c]
+        at += c
+    return rays, voxels
 
 
 def traverse(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
              lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every voxel each segment crosses: (ray index, flat voxel index) pairs.
+    """Every voxel each segment crosses, as (ray index, flat voxel index) pairs in order
+    along each ray. ``origins`` (n, 3) or (3,), ``dirs`` (n, 3), ``lengths`` (n,)."""
+    shape, origins, dirs, lengths = _prepare(shape, origins, dirs, lengths)
+    return _traverse(origins, dirs, lengths, shape, _max_steps(shape))
 
-    ``origins`` (n, 3) or (3,), ``dirs`` (n, 3) unit vectors, ``lengths`` (n,). A
-    segment that only touches an edge or a corner may or may not include the voxels
-    meeting there.
-    """
-    steps = list(_walk(shape, origins, dirs, lengths))
-    if not steps:
-        return np.empty(0, np.int64), np.empty(0, np.int64)
-    return np.concatenate([r for r, _ in steps]), np.concatenate([v for _, v in steps])
+
+@nb.njit(cache=True, parallel=True)
+def _first_hits(origins: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
+                shape: tuple[int, int, int], blocked: np.ndarray, max_steps: int) -> np.ndarray:
+    n = len(dirs)
+    hit = np.zeros(n, dtype=np.bool_)
+    for chunk in nb.prange((n + CHUNK - 1) // CHUNK):
+        buf = np.empty(max_steps, dtype=np.int64)
+        for r in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            c = _walk(origins[r], dirs[r], lengths[r], shape, buf, blocked)
+            hit[r] = c > 0 and blocked[buf[c - 1]]
+    return hit
 
 
 def first_hits(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
                lengths: np.ndarray, blocked: np.ndarray) -> np.ndarray:
-    """Boolean per ray: does its segment enter a voxel where ``blocked`` (flat) is True?
+    """Boolean per ray: does its segment enter a voxel where ``blocked`` (flat) is True?"""
+    shape, origins, dirs, lengths = _prepare(shape, origins, dirs, lengths)
+    return _first_hits(origins, dirs, lengths, shape, np.ascontiguousarray(blocked).ravel(),
+                       _max_steps(shape))
 
-    Each ray stops at its first blocked voxel, so cluttered scenes cost less.
+
+@nb.njit(cache=True, parallel=True)
+def _mark_free(origins: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
+               shape: tuple[int, int, int], stamp: np.ndarray, occupied_code: int,
+               free_code: int, max_steps: int) -> None:
+    n = len(dirs)
+    no_stop = np.zeros(0, dtype=np.bool_)
+    for chunk in nb.prange((n + CHUNK - 1) // CHUNK):
+        buf = np.empty(max_steps, dtype=np.int64)
+        for r in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            c = _walk(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
+            for s in range(c):
+                if stamp[buf[s]] != occupied_code:
+                    stamp[buf[s]] = free_code
+
+
+def mark_free(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
+              lengths: np.ndarray, stamp: np.ndarray, occupied_code: int,
+              free_code: int) -> None:
+    """Stamp ``free_code`` on every voxel the rays cross that is not stamped occupied.
+
+    Concurrent rays write the same value, so the result does not depend on threads.
     """
-    hit = np.zeros(len(dirs), dtype=bool)
-    for ray, flat in _walk(shape, origins, dirs, lengths, stop=blocked):
-        hit[ray[blocked[flat]]] = True
-    return hit
+    shape, origins, dirs, lengths = _prepare(shape, origins, dirs, lengths)
+    _mark_free(origins, dirs, lengths, shape, stamp, occupied_code, free_code,
+               _max_steps(shape))

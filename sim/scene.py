@@ -129,7 +129,7 @@ class Scene:
             key.ctrl = self._ctrl_for(qpos).tolist()
             key.mpos = self.model.body_pos[self.model.body_mocapid >= 0].ravel().tolist()
             key.mquat = self.model.body_quat[self.model.body_mocapid >= 0].ravel().tolist()
-        self.model = self.spec.compile()
+        self.spec.compile()  # to_xml needs a compiled spec; self.model stays as it was
         return str(self.spec.to_xml())
 
 

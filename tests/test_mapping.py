@@ -12,6 +12,8 @@ from hypothesis import strategies as st
 from mapping import OccupancyGrid, Pinhole, SensorModel, integrate_depth, world_to_camera
 
 MODEL = SensorModel(hit=0.7, miss=0.4, clamp_min=0.12, clamp_max=0.97)
+HIT, MISS, LO, HI = MODEL.stored()  # log-odds in thousandths: 847, -405, -1992, 3476
+QUANTUM = 2e-4  # probability error of one stored log-odds step, and then some
 
 
 def looking_down(height: float) -> np.ndarray:
@@ -36,19 +38,35 @@ def test_from_bounds_shape_and_centres():
 
 
 def test_log_odds_update_and_clamping_by_hand():
+    assert (HIT, MISS, LO, HI) == (847, -405, -1992, 3476)  # round(1000 logit(p))
     g = small_grid()
     g.update(np.array([0]), np.array([1]))
     p = g.probability().reshape(-1)
-    assert p[0] == pytest.approx(0.4) and p[1] == pytest.approx(0.7)
+    assert p[0] == pytest.approx(0.4, abs=QUANTUM) and p[1] == pytest.approx(0.7, abs=QUANTUM)
     g.update(np.array([0]), np.array([1]))
-    # two misses: logit = 2 logit(0.4); two hits: 2 logit(0.7)
-    assert p[0] != g.probability().reshape(-1)[0]
-    expected = 1 / (1 + math.exp(-2 * math.log(0.4 / 0.6)))
-    assert g.probability().reshape(-1)[0] == pytest.approx(expected, rel=1e-5)
+    expected = 1 / (1 + math.exp(-2 * math.log(0.4 / 0.6)))  # two misses add their log-odds
+    assert g.probability().reshape(-1)[0] == pytest.approx(expected, abs=QUANTUM)
     for _ in range(20):
         g.update(np.array([0]), np.array([1]))
+    assert g.log_odds.reshape(-1)[:2].tolist() == [LO, HI]  # clamped
     p = g.probability().reshape(-1)
-    assert p[0] == pytest.approx(0.12, rel=1e-5) and p[1] == pytest.approx(0.97, rel=1e-5)
+    assert p[0] == pytest.approx(0.12, abs=QUANTUM) and p[1] == pytest.approx(0.97, abs=QUANTUM)
+
+
+def test_occupied_wins_and_one_update_per_scan():
+    g = small_grid()
+    g.update(np.array([5, 5, 5, 6]), np.array([6, 6]))
+    flat = g.log_odds.reshape(-1)
+    assert flat[5] == MISS and flat[6] == HIT
+    assert g.nbytes() == 3 * g.size  # int16 log-odds + uint8 stamp
+
+
+def test_stamp_codes_survive_wrapping():
+    g = small_grid()
+    for _ in range(300):  # past the 127 codes of the stamp
+        g.update(np.array([1]), np.array([], dtype=int))
+    g.update(np.array([2]), np.array([], dtype=int))
+    assert g.log_odds.reshape(-1)[1] == LO and g.log_odds.reshape(-1)[2] == MISS
 
 
 def test_sensor_model_rejects_inconsistent_probabilities():
@@ -78,15 +96,16 @@ def test_plane_integration_marks_surface_occupied_and_space_free_once():
     n_free, n_occ = integrate_depth(g, depth, cam, looking_down(2.0), max_range=5.0)
     p = g.probability()
     centre = g.index(np.array([[0.0, 0.0, 0.0]]))[0]  # the voxel holding the floor point
-    assert p[tuple(centre)] == pytest.approx(0.7)
+    L = g.log_odds
+    assert L[tuple(centre)] == HIT
     above = g.index(np.array([[0.0, 0.0, 1.0]]))[0]
-    assert p[tuple(above)] == pytest.approx(0.4)  # one miss, however many rays crossed it
+    assert L[tuple(above)] == MISS  # one miss, however many rays crossed it
     below = g.index(np.array([[0.0, 0.0, -0.3]]))[0]
-    assert p[tuple(below)] == 0.5  # behind the surface: unknown
-    assert np.all(np.isclose(p, 0.4) | (p == 0.5) | np.isclose(p, 0.7))
-    assert n_free == int(np.isclose(p, 0.4).sum()) and n_occ == int(np.isclose(p, 0.7).sum())
+    assert L[tuple(below)] == 0 and p[tuple(below)] == 0.5  # behind the surface: unknown
+    assert set(np.unique(L).tolist()) <= {MISS, 0, HIT}
+    assert n_free == int((L == MISS).sum()) and n_occ == int((L == HIT).sum())
     # every occupied voxel holds the floor
-    occ_z = g.centers(np.argwhere(np.isclose(p, 0.7)))[:, 2]
+    occ_z = g.centers(np.argwhere(L == HIT))[:, 2]
     assert np.allclose(occ_z, 0.05)
 
 
@@ -97,9 +116,8 @@ def test_sky_and_nan_never_mark_occupied():
     depth[:, :8] = np.nan
     depth[:, 8:12] = -1.0
     integrate_depth(g, depth, cam, looking_down(2.0), max_range=1.0)
-    p = g.probability()
-    assert not np.any(p > 0.5)
-    assert g.probability_at(np.array([[0.0, 0.0, 1.5]]))[0] == pytest.approx(0.4)
+    assert not np.any(g.log_odds > 0)
+    assert g.probability_at(np.array([[0.0, 0.0, 1.5]]))[0] == pytest.approx(0.4, abs=QUANTUM)
     assert g.probability_at(np.array([[0.0, 0.0, 0.5]]))[0] == 0.5  # beyond max range
 
 
@@ -139,11 +157,11 @@ def test_free_voxels_are_exactly_those_the_ray_crosses(x, y, z):
     direction = end_cam / end_cam[2]
     cam = Pinhole(1, 1, 1.0, 1.0, -direction[0], -direction[1])
     integrate_depth(g, np.array([[end_cam[2]]]), cam, T, max_range=5.0)
-    flat = g.probability().reshape(-1)
-    ours = set(np.flatnonzero(np.isclose(flat, 0.4)).tolist())
+    flat = g.log_odds.reshape(-1)
+    ours = set(np.flatnonzero(flat == MISS).tolist())
     end_voxel = int(np.ravel_multi_index(tuple(g.index(end_world[None])[0]), g.shape))
     overlap = _overlaps(g, T[:3, 3], end_world)
     crossed = {v for v, length in overlap.items() if length > 1e-6} - {end_voxel}
     touched = {v for v, length in overlap.items() if length > -1e-9}
     assert crossed <= ours <= touched
-    assert flat[end_voxel] == pytest.approx(0.7)
+    assert flat[end_voxel] == HIT

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from mapping import OccupancyGrid, logit
+from mapping import OccupancyGrid
 from placement import (
     CameraModel,
     TargetModel,
@@ -26,7 +26,7 @@ UP = np.array([0.0, 0.0, 1.0])
 
 def free_grid(lo=(-1.0, -1.0, 0.0), hi=(1.0, 1.0, 2.0), res=0.1) -> OccupancyGrid:
     g = OccupancyGrid.from_bounds(np.array(lo), np.array(hi), res)
-    g.log_odds[:] = logit(0.01)
+    g.set_probability(0.01)
     return g
 
 
@@ -34,7 +34,7 @@ def occupy(g: OccupancyGrid, lo, hi, p: float = 0.99) -> None:
     """Set voxels whose centres lie in the box [lo, hi] to probability ``p``."""
     c = g.centers()
     inside = np.all((c >= np.array(lo)) & (c <= np.array(hi)), axis=-1)
-    g.log_odds[inside] = logit(p)
+    g.set_probability(p, inside)
 
 
 def test_resolution_eq2_and_eq4_by_hand():
@@ -98,7 +98,7 @@ def test_line_of_sight_matches_brute_force_on_random_clutter():
     rng = np.random.default_rng(4)
     g = free_grid(res=0.1)
     blocked = rng.random(g.shape) < 0.04
-    g.log_odds[blocked] = logit(0.9)
+    g.set_probability(0.9, blocked)
     box_lo = g.origin + np.argwhere(blocked) * g.resolution
     box_hi = box_lo + g.resolution
     cams = rng.uniform([-0.9, -0.9, 0.1], [0.9, 0.9, 1.9], (300, 3))
