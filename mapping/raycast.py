@@ -44,11 +44,13 @@ def _start(o: float, d: float, t0: float, n: int) -> tuple[int, int, float, floa
 
 @nb.njit(cache=True)
 def _walk(o: np.ndarray, d: np.ndarray, length: float, shape: tuple[int, int, int],
-          out: np.ndarray, stop: np.ndarray) -> int:
-    """Write the flat indices a segment crosses into ``out``; return how many. With a
-    non-empty ``stop`` (flat bool), end after the first voxel where it is True."""
+          out: np.ndarray, stop: np.ndarray, start: float = 0.0) -> int:
+    """Write the flat indices that the segment from ``start`` to ``length`` crosses into
+    ``out``; return how many. With a non-empty ``stop`` (flat bool), end after the first
+    voxel where it is True."""
     n0, n1, n2 = shape
     t0, t1 = _clip(o[0], o[1], o[2], d[0], d[1], d[2], length, n0, n1, n2)
+    t0 = max(t0, start)
     if t1 <= t0:
         return 0
     i, s0, m0, dt0 = _start(o[0], d[0], t0, n0)
@@ -151,6 +153,17 @@ def first_hits(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarra
                        _max_steps(shape))
 
 
+@nb.njit(cache=True, inline="always")
+def _stamp_free(stamp: np.ndarray, voxels: np.ndarray, count: int, occupied_code: int,
+                free_code: int) -> None:
+    """Stamp the first ``count`` voxels free unless stamped occupied; write only changes,
+    so threads do not fight over cache lines."""
+    for s in range(count):
+        v = stamp[voxels[s]]
+        if v != occupied_code and v != free_code:
+            stamp[voxels[s]] = free_code
+
+
 @nb.njit(cache=True, parallel=True)
 def _mark_free(origins: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
                shape: tuple[int, int, int], stamp: np.ndarray, occupied_code: int,
@@ -161,9 +174,7 @@ def _mark_free(origins: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
         buf = np.empty(max_steps, dtype=np.int64)
         for r in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
             c = _walk(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
-            for s in range(c):
-                if stamp[buf[s]] != occupied_code:
-                    stamp[buf[s]] = free_code
+            _stamp_free(stamp, buf, c, occupied_code, free_code)
 
 
 def mark_free(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
@@ -176,3 +187,106 @@ def mark_free(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray
     shape, origins, dirs, lengths = _prepare(shape, origins, dirs, lengths)
     _mark_free(origins, dirs, lengths, shape, stamp, occupied_code, free_code,
                _max_steps(shape))
+
+
+# ---------------------------------------------------------------- shared rays of an image
+
+
+@nb.njit(cache=True)
+def _block_minima(lengths: np.ndarray, height: int, width: int, levels: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel block of side 2^l (l = 1..levels): the shortest valid ray and its pixel.
+
+    Returns (minimum, pixel, offset, block columns): level l's block (bu, bv) is at
+    ``offset[l] + bv * columns[l] + bu``. Invalid rays (NaN) count as infinitely long
+    and are never chosen; a block of invalid rays has minimum NaN.
+    """
+    offsets = np.zeros(levels + 2, dtype=np.int64)
+    cols = np.zeros(levels + 1, dtype=np.int64)
+    rows = np.zeros(levels + 1, dtype=np.int64)
+    cols[0], rows[0] = width, height
+    for lv in range(1, levels + 1):
+        cols[lv], rows[lv] = (cols[lv - 1] + 1) // 2, (rows[lv - 1] + 1) // 2
+    for lv in range(0, levels + 1):
+        offsets[lv + 1] = offsets[lv] + cols[lv] * rows[lv]
+    minimum = np.full(offsets[levels + 1], np.nan)
+    pixel = np.full(offsets[levels + 1], -1, dtype=np.int64)
+    for p in range(height * width):  # level 0: the pixels themselves
+        if not np.isnan(lengths[p]):
+            minimum[p], pixel[p] = lengths[p], p
+    for lv in range(1, levels + 1):
+        for bv in range(rows[lv]):
+            for bu in range(cols[lv]):
+                best, arg = np.inf, -1
+                for cv in range(2 * bv, min(2 * bv + 2, rows[lv - 1])):
+                    for cu in range(2 * bu, min(2 * bu + 2, cols[lv - 1])):
+                        c = offsets[lv - 1] + cv * cols[lv - 1] + cu
+                        if pixel[c] >= 0 and minimum[c] < best:
+                            best, arg = minimum[c], pixel[c]
+                at = offsets[lv] + bv * cols[lv] + bu
+                if arg >= 0:
+                    minimum[at], pixel[at] = best, arg
+    return minimum, pixel, offsets, cols
+
+
+@nb.njit(cache=True, parallel=True)
+def _mark_free_image(origin: np.ndarray, dirs: np.ndarray, lengths: np.ndarray, height: int,
+                     width: int, band_end: np.ndarray, shape: tuple[int, int, int],
+                     stamp: np.ndarray, occupied_code: int, free_code: int,
+                     max_steps: int) -> None:
+    levels = len(band_end) - 1
+    minimum, pixel, offsets, cols = _block_minima(lengths, height, width, levels)
+    top_cols = cols[levels]
+    top = offsets[levels + 1] - offsets[levels]
+    no_stop = np.zeros(0, dtype=np.bool_)
+    for item in nb.prange(top):
+        # Threads take contiguous ranges of items: spread each range over the image.
+        b = (item * 7919) % top if top % 7919 else item
+        buf = np.empty(max_steps, dtype=np.int64)
+        st_level = np.empty(4 * levels + 4, dtype=np.int64)
+        st_u = np.empty(4 * levels + 4, dtype=np.int64)
+        st_v = np.empty(4 * levels + 4, dtype=np.int64)
+        st_t = np.empty(4 * levels + 4)
+        st_level[0], st_u[0], st_v[0], st_t[0] = levels, b % top_cols, b // top_cols, 0.0
+        n = 1
+        while n > 0:
+            n -= 1
+            lv, bu, bv, t_a = st_level[n], st_u[n], st_v[n], st_t[n]
+            at = offsets[lv] + bv * cols[lv] + bu
+            if pixel[at] < 0:
+                continue  # no valid ray in the block
+            # Every ray of the block reaches minimum[at]: one of them speaks for all up
+            # to there, or to the end of the level's band; the sub-blocks go on from there.
+            ray, t_b = pixel[at], minimum[at]
+            if lv > 0:
+                t_b = min(t_b, band_end[lv])
+            if t_b > t_a:
+                c = _walk(origin, dirs[ray], t_b, shape, buf, no_stop, t_a)
+                _stamp_free(stamp, buf, c, occupied_code, free_code)
+            if lv > 0:
+                rows_below = (offsets[lv] - offsets[lv - 1]) // cols[lv - 1]
+                for cv in range(2 * bv, min(2 * bv + 2, rows_below)):
+                    for cu in range(2 * bu, min(2 * bu + 2, cols[lv - 1])):
+                        st_level[n], st_u[n], st_v[n], st_t[n] = lv - 1, cu, cv, max(t_a, t_b)
+                        n += 1
+
+
+def mark_free_image(shape: tuple[int, int, int], origin: np.ndarray, dirs: np.ndarray,
+                    lengths: np.ndarray, stamp: np.ndarray, occupied_code: int,
+                    free_code: int, band_end: np.ndarray) -> None:
+    """Like ``mark_free`` for the rays of an image (h, w, 3 directions; h, w lengths, NaN
+    where there is no ray), sharing the traversal between neighbouring rays.
+
+    Level l groups blocks of 2^l x 2^l pixels. Up to ``band_end[l]`` (grid units, with
+    band_end[0] unused and band_end decreasing in l), and no further than its shortest
+    ray, a block is traversed by that ray only; beyond, by its four sub-blocks. With a
+    block narrower than a voxel where it is shared, the union of voxels crossed differs
+    from the exact one only at voxels the bundle grazes. ``band_end`` of length 1 is exact.
+    """
+    height, width = lengths.shape
+    shape = (int(shape[0]), int(shape[1]), int(shape[2]))
+    _mark_free_image(np.ascontiguousarray(origin, dtype=np.float64),
+                     np.ascontiguousarray(dirs, dtype=np.float64).reshape(-1, 3),
+                     np.ascontiguousarray(lengths, dtype=np.float64).ravel(), height, width,
+                     np.ascontiguousarray(band_end, dtype=np.float64), shape, stamp,
+                     occupied_code, free_code, _max_steps(shape))
