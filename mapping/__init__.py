@@ -3,7 +3,7 @@
 from .camera import MUJOCO_TO_OPENCV, Pinhole, camera_to_world, opencv_pose, world_to_camera
 from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit
 from .integrate import integrate_depth
-from .raycast import first_hits, mark_free, mark_free_image, traverse
+from .raycast import first_hits, mark_free_image, traverse
 
 __all__ = [
     "LOG_ODDS_SCALE",
@@ -15,7 +15,6 @@ __all__ = [
     "first_hits",
     "integrate_depth",
     "logit",
-    "mark_free",
     "mark_free_image",
     "opencv_pose",
     "traverse",

@@ -19,7 +19,7 @@ import numpy as np
 
 from .camera import Pinhole
 from .grid import OccupancyGrid
-from .raycast import mark_free, mark_free_image
+from .raycast import mark_free_image
 
 
 def share_bands(focal_px: float, share: float, max_levels: int = 4) -> np.ndarray:
@@ -32,15 +32,15 @@ def share_bands(focal_px: float, share: float, max_levels: int = 4) -> np.ndarra
 
 
 @nb.njit(cache=True, parallel=True)
-def _rays(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, stride: int,
-          R: np.ndarray, t: np.ndarray, origin: np.ndarray, resolution: float,
-          max_range: float, shape: tuple[int, int, int], stamp: np.ndarray,
-          occupied_code: int) -> tuple[np.ndarray, np.ndarray]:
-    """World ray directions and lengths (voxels; NaN: no ray) of every ``stride``-th pixel,
-    stamping the voxel of each end point within ``max_range`` occupied."""
-    rows, cols = (depth.shape[0] + stride - 1) // stride, (depth.shape[1] + stride - 1) // stride
-    dirs = np.empty((rows, cols, 3))
-    lengths = np.full((rows, cols), np.nan)
+def _ray_lengths(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, stride: int,
+                 R: np.ndarray, t: np.ndarray, origin: np.ndarray, resolution: float,
+                 max_range: float, shape: tuple[int, int, int], stamp: np.ndarray,
+                 occupied_code: int) -> np.ndarray:
+    """Ray lengths (voxels; NaN: no ray) of every ``stride``-th pixel, stamping the voxel
+    of each end point within ``max_range`` occupied."""
+    rows = (depth.shape[0] + stride - 1) // stride
+    cols = (depth.shape[1] + stride - 1) // stride
+    lengths = np.full((rows, cols), np.nan, dtype=np.float32)
     n0, n1, n2 = shape
     for r in nb.prange(rows):
         v = r * stride
@@ -50,20 +50,16 @@ def _rays(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, stride:
             if not (z > 0.0):  # NaN, zero or negative: no measurement
                 continue
             x, y = (u - cx) / fx, (v - cy) / fy
-            norm = np.sqrt(x * x + y * y + 1.0)
-            d0 = (R[0, 0] * x + R[0, 1] * y + R[0, 2]) / norm
-            d1 = (R[1, 0] * x + R[1, 1] * y + R[1, 2]) / norm
-            d2 = (R[2, 0] * x + R[2, 1] * y + R[2, 2]) / norm
-            dirs[r, c, 0], dirs[r, c, 1], dirs[r, c, 2] = d0, d1, d2
-            dist = z * norm  # inf for sky
+            dist = z * np.sqrt(x * x + y * y + 1.0)  # inf for sky
             if dist <= max_range:
-                i = int(np.floor((t[0] + dist * d0 - origin[0]) / resolution))
-                j = int(np.floor((t[1] + dist * d1 - origin[1]) / resolution))
-                k = int(np.floor((t[2] + dist * d2 - origin[2]) / resolution))
-                if 0 <= i < n0 and 0 <= j < n1 and 0 <= k < n2:
-                    stamp[(i * n1 + j) * n2 + k] = occupied_code
+                ijk = np.empty(3, dtype=np.int64)
+                for a in range(3):
+                    point = t[a] + z * (R[a, 0] * x + R[a, 1] * y + R[a, 2])
+                    ijk[a] = int(np.floor((point - origin[a]) / resolution))
+                if 0 <= ijk[0] < n0 and 0 <= ijk[1] < n1 and 0 <= ijk[2] < n2:
+                    stamp[(ijk[0] * n1 + ijk[1]) * n2 + ijk[2]] = occupied_code
             lengths[r, c] = (min(dist, max_range) - 1e-6) / resolution
-    return dirs, lengths
+    return lengths
 
 
 def integrate_depth(grid: OccupancyGrid, depth: np.ndarray, camera: Pinhole,
@@ -75,16 +71,15 @@ def integrate_depth(grid: OccupancyGrid, depth: np.ndarray, camera: Pinhole,
     """
     occupied_code, free_code = grid.begin_scan()
     stamp = grid.stamp.reshape(-1)
-    dirs, lengths = _rays(np.ascontiguousarray(depth), camera.fx, camera.fy, camera.cx,
-                          camera.cy, stride, np.ascontiguousarray(T_world_cam[:3, :3]),
-                          np.ascontiguousarray(T_world_cam[:3, 3]), grid.origin,
-                          grid.resolution, max_range, grid.shape, stamp, occupied_code)
+    R = np.ascontiguousarray(T_world_cam[:3, :3], dtype=np.float64)
+    intrinsics = (camera.fx, camera.fy, camera.cx, camera.cy)
+    lengths = _ray_lengths(np.ascontiguousarray(depth), *intrinsics, stride, R,
+                           np.ascontiguousarray(T_world_cam[:3, 3], dtype=np.float64),
+                           grid.origin, grid.resolution, max_range, grid.shape, stamp,
+                           occupied_code)
     # Free space: from the camera to just before each end point (or to max_range).
     origin = (T_world_cam[:3, 3] - grid.origin) / grid.resolution
-    if share > 0:
-        mark_free_image(grid.shape, origin, dirs, lengths, stamp, occupied_code, free_code,
-                        share_bands(camera.fy / stride, share))
-    else:
-        ok = np.isfinite(lengths)
-        mark_free(grid.shape, origin, dirs[ok], lengths[ok], stamp, occupied_code, free_code)
+    bands = share_bands(camera.fy / stride, share) if share > 0 else np.array([np.inf])
+    mark_free_image(grid.shape, origin, R, intrinsics, stride, lengths, stamp, occupied_code,
+                    free_code, bands)
     return grid.end_scan(occupied_code, free_code)

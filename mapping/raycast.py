@@ -164,129 +164,139 @@ def _stamp_free(stamp: np.ndarray, voxels: np.ndarray, count: int, occupied_code
             stamp[voxels[s]] = free_code
 
 
-@nb.njit(cache=True, parallel=True)
-def _mark_free(origins: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
-               shape: tuple[int, int, int], stamp: np.ndarray, occupied_code: int,
-               free_code: int, max_steps: int) -> None:
-    n = len(dirs)
-    no_stop = np.zeros(0, dtype=np.bool_)
-    for chunk in nb.prange((n + CHUNK - 1) // CHUNK):
-        buf = np.empty(max_steps, dtype=np.int64)
-        for r in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-            c = _walk(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
-            _stamp_free(stamp, buf, c, occupied_code, free_code)
-
-
-def mark_free(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
-              lengths: np.ndarray, stamp: np.ndarray, occupied_code: int,
-              free_code: int) -> None:
-    """Stamp ``free_code`` on every voxel the rays cross that is not stamped occupied.
-
-    Concurrent rays write the same value, so the result does not depend on threads.
-    """
-    shape, origins, dirs, lengths = _prepare(shape, origins, dirs, lengths)
-    _mark_free(origins, dirs, lengths, shape, stamp, occupied_code, free_code,
-               _max_steps(shape))
-
-
 # ---------------------------------------------------------------- shared rays of an image
 
 
-@nb.njit(cache=True)
-def _block_minima(lengths: np.ndarray, height: int, width: int, levels: int
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per pixel block of side 2^l (l = 1..levels): the shortest valid ray and its pixel.
+@nb.njit(cache=True, inline="always")
+def _pixel_ray(p: int, cols: int, stride: int, fx: float, fy: float, cx: float, cy: float,
+               R: np.ndarray, out: np.ndarray) -> None:
+    """Unit world direction of the ray through pixel ``p`` (row-major, every ``stride``)."""
+    x = ((p % cols) * stride - cx) / fx
+    y = ((p // cols) * stride - cy) / fy
+    norm = np.sqrt(x * x + y * y + 1.0)
+    for a in range(3):
+        out[a] = (R[a, 0] * x + R[a, 1] * y + R[a, 2]) / norm
 
-    Returns (minimum, pixel, offset, block columns): level l's block (bu, bv) is at
-    ``offset[l] + bv * columns[l] + bu``. Invalid rays (NaN) count as infinitely long
-    and are never chosen; a block of invalid rays has minimum NaN.
+
+@nb.njit(cache=True)
+def _block_minima(lengths: np.ndarray, levels: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel block of side 2^l (l = 1..levels): the shortest ray and its pixel.
+
+    Returns (minimum, pixel, offset, block rows, block columns); level l's block (bu, bv)
+    is at ``offset[l] + bv * columns[l] + bu``. Level 0 is the image itself (not stored).
+    Rays of NaN length do not exist; a block without rays has pixel -1.
     """
-    offsets = np.zeros(levels + 2, dtype=np.int64)
-    cols = np.zeros(levels + 1, dtype=np.int64)
     rows = np.zeros(levels + 1, dtype=np.int64)
-    cols[0], rows[0] = width, height
+    cols = np.zeros(levels + 1, dtype=np.int64)
+    rows[0], cols[0] = lengths.shape
+    offsets = np.zeros(levels + 2, dtype=np.int64)
     for lv in range(1, levels + 1):
-        cols[lv], rows[lv] = (cols[lv - 1] + 1) // 2, (rows[lv - 1] + 1) // 2
-    for lv in range(0, levels + 1):
-        offsets[lv + 1] = offsets[lv] + cols[lv] * rows[lv]
-    minimum = np.full(offsets[levels + 1], np.nan)
-    pixel = np.full(offsets[levels + 1], -1, dtype=np.int64)
-    for p in range(height * width):  # level 0: the pixels themselves
-        if not np.isnan(lengths[p]):
-            minimum[p], pixel[p] = lengths[p], p
+        rows[lv], cols[lv] = (rows[lv - 1] + 1) // 2, (cols[lv - 1] + 1) // 2
+        offsets[lv + 1] = offsets[lv] + rows[lv] * cols[lv]  # offsets[1] = 0
+    minimum = np.full(offsets[levels + 1], np.inf, dtype=np.float32)
+    pixel = np.full(offsets[levels + 1], -1, dtype=np.int32)
+    flat = lengths.ravel()
     for lv in range(1, levels + 1):
         for bv in range(rows[lv]):
             for bu in range(cols[lv]):
-                best, arg = np.inf, -1
+                best, arg = np.float32(np.inf), -1
                 for cv in range(2 * bv, min(2 * bv + 2, rows[lv - 1])):
                     for cu in range(2 * bu, min(2 * bu + 2, cols[lv - 1])):
-                        c = offsets[lv - 1] + cv * cols[lv - 1] + cu
-                        if pixel[c] >= 0 and minimum[c] < best:
-                            best, arg = minimum[c], pixel[c]
+                        if lv == 1:
+                            c = cv * cols[0] + cu
+                            value, who = flat[c], c
+                            if np.isnan(value):
+                                continue
+                        else:
+                            c = offsets[lv - 1] + cv * cols[lv - 1] + cu
+                            value, who = minimum[c], pixel[c]
+                            if who < 0:
+                                continue
+                        if arg < 0 or value < best:
+                            best, arg = value, who
                 at = offsets[lv] + bv * cols[lv] + bu
-                if arg >= 0:
-                    minimum[at], pixel[at] = best, arg
-    return minimum, pixel, offsets, cols
+                minimum[at], pixel[at] = best, arg
+    return minimum, pixel, offsets, rows, cols
+
+
+BLOCKS_PER_ITEM = 16  # top-level blocks per parallel work item
 
 
 @nb.njit(cache=True, parallel=True)
-def _mark_free_image(origin: np.ndarray, dirs: np.ndarray, lengths: np.ndarray, height: int,
-                     width: int, band_end: np.ndarray, shape: tuple[int, int, int],
-                     stamp: np.ndarray, occupied_code: int, free_code: int,
-                     max_steps: int) -> None:
+def _mark_free_image(origin: np.ndarray, R: np.ndarray, fx: float, fy: float, cx: float,
+                     cy: float, stride: int, lengths: np.ndarray, band_end: np.ndarray,
+                     shape: tuple[int, int, int], stamp: np.ndarray, occupied_code: int,
+                     free_code: int, max_steps: int) -> None:
     levels = len(band_end) - 1
-    minimum, pixel, offsets, cols = _block_minima(lengths, height, width, levels)
-    top_cols = cols[levels]
-    top = offsets[levels + 1] - offsets[levels]
+    minimum, pixel, offsets, rows, cols = _block_minima(lengths, levels)
+    flat = lengths.ravel()
+    top = rows[levels] * cols[levels]
+    items = (top + BLOCKS_PER_ITEM - 1) // BLOCKS_PER_ITEM
     no_stop = np.zeros(0, dtype=np.bool_)
-    for item in nb.prange(top):
-        # Threads take contiguous ranges of items: spread each range over the image.
-        b = (item * 7919) % top if top % 7919 else item
+    for item in nb.prange(items):
         buf = np.empty(max_steps, dtype=np.int64)
-        st_level = np.empty(4 * levels + 4, dtype=np.int64)
-        st_u = np.empty(4 * levels + 4, dtype=np.int64)
-        st_v = np.empty(4 * levels + 4, dtype=np.int64)
-        st_t = np.empty(4 * levels + 4)
-        st_level[0], st_u[0], st_v[0], st_t[0] = levels, b % top_cols, b // top_cols, 0.0
-        n = 1
-        while n > 0:
-            n -= 1
-            lv, bu, bv, t_a = st_level[n], st_u[n], st_v[n], st_t[n]
-            at = offsets[lv] + bv * cols[lv] + bu
-            if pixel[at] < 0:
-                continue  # no valid ray in the block
-            # Every ray of the block reaches minimum[at]: one of them speaks for all up
-            # to there, or to the end of the level's band; the sub-blocks go on from there.
-            ray, t_b = pixel[at], minimum[at]
-            if lv > 0:
-                t_b = min(t_b, band_end[lv])
-            if t_b > t_a:
-                c = _walk(origin, dirs[ray], t_b, shape, buf, no_stop, t_a)
-                _stamp_free(stamp, buf, c, occupied_code, free_code)
-            if lv > 0:
-                rows_below = (offsets[lv] - offsets[lv - 1]) // cols[lv - 1]
-                for cv in range(2 * bv, min(2 * bv + 2, rows_below)):
-                    for cu in range(2 * bu, min(2 * bu + 2, cols[lv - 1])):
-                        st_level[n], st_u[n], st_v[n], st_t[n] = lv - 1, cu, cv, max(t_a, t_b)
-                        n += 1
+        direction = np.empty(3)
+        depth = 4 * levels + 4
+        st_level = np.empty(depth, dtype=np.int64)
+        st_u = np.empty(depth, dtype=np.int64)
+        st_v = np.empty(depth, dtype=np.int64)
+        st_t = np.empty(depth)
+        for k in range(item * BLOCKS_PER_ITEM, min(top, (item + 1) * BLOCKS_PER_ITEM)):
+            # Threads take contiguous ranges of items: spread each over the image.
+            b = (k * 7919) % top if top % 7919 else k
+            st_level[0], st_u[0], st_v[0], st_t[0] = levels, b % cols[levels], b // cols[levels], 0.0
+            n = 1
+            while n > 0:
+                n -= 1
+                lv, bu, bv, t_a = st_level[n], st_u[n], st_v[n], st_t[n]
+                if lv == 0:
+                    ray = bv * cols[0] + bu
+                    t_b = flat[ray]
+                    if np.isnan(t_b):
+                        continue
+                else:
+                    at = offsets[lv] + bv * cols[lv] + bu
+                    ray = pixel[at]
+                    if ray < 0:
+                        continue  # no ray in the block
+                    # Every ray of the block reaches minimum[at]: one of them speaks for
+                    # all up to there, or to the end of the level's band; the sub-blocks
+                    # go on from there.
+                    t_b = min(minimum[at], band_end[lv])
+                if t_b > t_a:
+                    _pixel_ray(ray, cols[0], stride, fx, fy, cx, cy, R, direction)
+                    c = _walk(origin, direction, t_b, shape, buf, no_stop, t_a)
+                    _stamp_free(stamp, buf, c, occupied_code, free_code)
+                if lv > 0:
+                    for cv in range(2 * bv, min(2 * bv + 2, rows[lv - 1])):
+                        for cu in range(2 * bu, min(2 * bu + 2, cols[lv - 1])):
+                            st_level[n], st_u[n], st_v[n] = lv - 1, cu, cv
+                            st_t[n] = max(t_a, t_b)
+                            n += 1
 
 
-def mark_free_image(shape: tuple[int, int, int], origin: np.ndarray, dirs: np.ndarray,
+def mark_free_image(shape: tuple[int, int, int], origin: np.ndarray, R: np.ndarray,
+                    camera: tuple[float, float, float, float], stride: int,
                     lengths: np.ndarray, stamp: np.ndarray, occupied_code: int,
                     free_code: int, band_end: np.ndarray) -> None:
-    """Like ``mark_free`` for the rays of an image (h, w, 3 directions; h, w lengths, NaN
-    where there is no ray), sharing the traversal between neighbouring rays.
+    """Stamp ``free_code`` on every voxel the rays of an image cross, unless stamped
+    occupied, sharing the traversal between neighbouring rays.
 
-    Level l groups blocks of 2^l x 2^l pixels. Up to ``band_end[l]`` (grid units, with
-    band_end[0] unused and band_end decreasing in l), and no further than its shortest
-    ray, a block is traversed by that ray only; beyond, by its four sub-blocks. With a
-    block narrower than a voxel where it is shared, the union of voxels crossed differs
-    from the exact one only at voxels the bundle grazes. ``band_end`` of length 1 is exact.
+    Rays start at ``origin`` (grid units) through every ``stride``-th pixel of a pinhole
+    camera ``(fx, fy, cx, cy)`` rotated by ``R`` (world from OpenCV camera); ``lengths``
+    (rows, cols) are in voxels, NaN where a pixel has no ray. Level l groups blocks of
+    2^l x 2^l rays. Up to ``band_end[l]`` (voxels; band_end[0] unused, decreasing in l),
+    and no further than its shortest ray, a block is traversed by that ray only; beyond,
+    by its four sub-blocks. Where a shared block is narrower than a voxel, the union of
+    voxels crossed differs from the exact one only at voxels the bundle grazes.
+    ``band_end`` of length 1 traverses every ray from the camera. Concurrent rays write
+    the same value, so the result does not depend on threads.
     """
-    height, width = lengths.shape
     shape = (int(shape[0]), int(shape[1]), int(shape[2]))
+    fx, fy, cx, cy = camera
     _mark_free_image(np.ascontiguousarray(origin, dtype=np.float64),
-                     np.ascontiguousarray(dirs, dtype=np.float64).reshape(-1, 3),
-                     np.ascontiguousarray(lengths, dtype=np.float64).ravel(), height, width,
+                     np.ascontiguousarray(R, dtype=np.float64), fx, fy, cx, cy, stride,
+                     np.ascontiguousarray(lengths, dtype=np.float32),
                      np.ascontiguousarray(band_end, dtype=np.float64), shape, stamp,
                      occupied_code, free_code, _max_steps(shape))
