@@ -4,8 +4,15 @@ from .camera import MUJOCO_TO_OPENCV, Pinhole, camera_to_world, opencv_pose, wor
 from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit
 from .integrate import integrate_depth
 from .raycast import first_hits, mark_free_image, traverse
+from .views import GAINS, GainModel, View, mean_entropy, region_mask, view_rays
 
 __all__ = [
+    "GAINS",
+    "GainModel",
+    "View",
+    "mean_entropy",
+    "region_mask",
+    "view_rays",
     "LOG_ODDS_SCALE",
     "MUJOCO_TO_OPENCV",
     "OccupancyGrid",

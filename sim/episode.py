@@ -34,11 +34,14 @@ from mapping import (
 )
 from placement import CameraModel, Region, TargetModel, Weights, search, target_points
 
+from .collision import blocked_rays, clearance
+from .exploration import Exploration
 from .ik import IKResult, solve_camera_pose
 from .record import Recorder
 from .render import Renderer, camera_pinhole, camera_pose
 from .scenario import Scenario
 from .scene import Robot, Scene, Target, build_scene
+from .sensing import DepthSensor
 
 VERSION = "0.1.0"
 
@@ -85,61 +88,7 @@ def target_model(t: Target) -> TargetModel:
 def new_grid(s: Scenario) -> OccupancyGrid:
     g = s.grid
     return OccupancyGrid.from_bounds(np.array(g.bounds_min), np.array(g.bounds_max),
-                                     g.resolution_m,
-                                     SensorModel(g.hit, g.miss, g.clamp_min, g.clamp_max))
-
-
-def scan_points(target: np.ndarray, views: int, spread: float) -> np.ndarray:
-    """Look-at points of the initial scan: the target, then a ring around it."""
-    points = [target]
-    for i in range(views - 1):
-        a = 2 * math.pi * i / max(views - 1, 1)
-        points.append(target + spread * np.array([math.cos(a), math.sin(a), 0.3 * (-1) ** i]))
-    return np.array(points)
-
-
-def _collision_geoms(model: mujoco.MjModel, bodies: frozenset[int]) -> list[int]:
-    return [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies
-            and (model.geom_contype[g] or model.geom_conaffinity[g])]
-
-
-def clearance(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot,
-              limit: float = 1.0) -> tuple[float, float]:
-    """Smallest distances (m), up to ``limit``: from the robot to any other collidable
-    geometry but the floor, and between its own links that are not neighbours.
-    Negative when penetrating."""
-    own = _collision_geoms(model, robot.body_ids)
-    floor = model.geom("floor").id
-    others = [g for g in _collision_geoms(model, frozenset(range(model.nbody)) - robot.body_ids)
-              if g != floor]
-    fromto = np.zeros(6)
-    to_others = to_self = limit
-    for g in own:
-        for h in others:
-            to_others = min(to_others, mujoco.mj_geomDistance(model, data, g, h, limit, fromto))
-    for i, g in enumerate(own):
-        for h in own[i + 1:]:
-            bg, bh = model.geom_bodyid[g], model.geom_bodyid[h]
-            if bg == bh or model.body_parentid[bg] == bh or model.body_parentid[bh] == bg:
-                continue
-            to_self = min(to_self, mujoco.mj_geomDistance(model, data, g, h, limit, fromto))
-    return float(to_others), float(to_self)
-
-
-def blocked_rays(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot,
-                 points: np.ndarray) -> int:
-    """How many of the segments from the robot's camera to ``points`` meet any geometry."""
-    origin = data.camera(robot.camera).xpos.copy()
-    head = model.body(robot.head_body).id
-    geomid = np.zeros(1, dtype=np.int32)
-    count = 0
-    for p in points:
-        vec = p - origin
-        dist = float(np.linalg.norm(vec))
-        hit = mujoco.mj_ray(model, data, origin, vec / dist, None, 1, head, geomid)
-        if geomid[0] >= 0 and hit < dist - 1e-4:
-            count += 1
-    return count
+                                     g.resolution_m, SensorModel(*s.sensor()))
 
 
 def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: int,
@@ -180,6 +129,7 @@ class Episode:
         self.data = self.scene.make_data()
         self.grid = new_grid(scenario)
         self.recorder = Recorder(None, "")
+        self.pinhole = camera_pinhole(self.model, self.scene.robots[0].camera)
         self.step = 0
         cam = scenario.camera
         self.camera_model = CameraModel(math.radians(cam.fovy_deg), cam.height, cam.near_m,
@@ -187,36 +137,22 @@ class Episode:
 
     # ------------------------------------------------------------ stages
 
-    def scan(self) -> dict[str, Any]:
-        """Stage 1: each robot looks around the target from its start pose; map the depth."""
-        s, scene = self.s, self.scene
-        points = scan_points(scene.primary.position, s.mapping.views_per_robot,
-                             s.mapping.scan_spread_m)
-        pinhole = camera_pinhole(self.model, scene.robots[0].camera)
-        views = {}
-        with Renderer(self.model, pinhole.width, pinhole.height) as renderer:
-            for robot in scene.robots:
-                taken = 0
-                for look in points:
-                    with self.timer("ik"):
-                        ik = solve_camera_pose(self.model, self.data.qpos, robot, look,
-                                               move_base=False)
-                    self._set_robot(robot, ik.qpos)
-                    with self.timer("render"):
-                        depth = renderer.depth(self.data, robot.camera)
-                    T = camera_pose(self.data, robot.camera)
-                    with self.timer("mapping"):
-                        integrate_depth(self.grid, depth, pinhole, opencv_pose(T),
-                                        s.grid.max_range_m, s.mapping.pixel_stride)
-                    self._tick()
-                    self.recorder.camera(robot.name, T, pinhole, depth=depth)
-                    taken += 1
-                self._set_robot(robot, scene.start_qpos)
-                views[robot.name] = taken
+    def map(self, renderer: Renderer) -> dict[str, Any]:
+        """Stage 1: cooperative mapping by expected information (sim/exploration.py)."""
+        s = self.s
+        sensor = DepthSensor(renderer, self.pinhole, s.mapping.depth_source, s.camera.baseline_m)
+
+        def on_view(robot: Robot, T: np.ndarray, gain: float, depth: np.ndarray) -> None:
+            self._tick()
+            self.recorder.camera(robot.name, camera_pose(self.data, robot.camera),
+                                 self.pinhole, depth=depth)
+            self.recorder.view(robot.name, T, self.pinhole, s.camera.far_m, gain)
+
+        with self.timer("mapping"):
+            summary = Exploration(self.scene, self.data, self.grid, sensor, self.pinhole,
+                                  self.rng, on_view).run()
         self.recorder.grid(self.grid)
-        p = self.grid.probability()
-        return {"views": views, "known_free_fraction": float((p < s.rating.free_threshold).mean()),
-                "occupied_fraction": float((p > 0.5).mean())}
+        return summary
 
     def place(self, robot: Robot, taken: list[np.ndarray]) -> Placement:
         """Stage 2 for one robot, given the camera positions already taken."""
@@ -257,37 +193,36 @@ class Episode:
         self._set_robot(robot, start)
         return result
 
-    def look(self, placements: list[Placement]) -> list[dict[str, Any]]:
+    def look(self, placements: list[Placement], renderer: Renderer) -> list[dict[str, Any]]:
         """Stage 3: render from the reached poses and find each target in the image."""
-        pinhole = camera_pinhole(self.model, self.scene.robots[0].camera)
+        pinhole = self.pinhole
         rows = []
-        with Renderer(self.model, pinhole.width, pinhole.height) as renderer:
-            self._tick()
-            for p in placements:
-                robot = p.robot
-                with self.timer("render"):
-                    rgb = renderer.rgb(self.data, robot.camera)
-                    depth = renderer.depth(self.data, robot.camera)
-                    seg = renderer.segmentation(self.data, robot.camera)
-                self.recorder.camera(robot.name, camera_pose(self.data, robot.camera), pinhole,
-                                     rgb, depth)
-                row: dict[str, Any] = {"name": robot.name, "camera": robot.camera,
-                                       "placed": p.target is not None,
-                                       "pose": pose_dict(self.data, robot.camera)}
-                if p.target is not None and p.ik is not None and p.commanded is not None:
-                    row.update({
-                        "commanded_pose": {"position": p.commanded.tolist()},
-                        "target": p.target.summary(),
-                        "rating": p.rating,
-                        "ik": p.ik.summary(),
-                        **find_target(rgb, seg, p.target, self.model.geom(p.target.geom).id,
-                                      camera_pose(self.data, robot.camera), pinhole),
-                    })
-                else:
-                    row.update({"seen": False, "pixel": None})
-                row["candidates_tried"] = p.candidates_tried
-                row["rejections"] = dict(p.rejections)
-                rows.append(row)
+        self._tick()
+        for p in placements:
+            robot = p.robot
+            with self.timer("render"):
+                rgb = renderer.rgb(self.data, robot.camera)
+                depth = renderer.depth(self.data, robot.camera)
+                seg = renderer.segmentation(self.data, robot.camera)
+            self.recorder.camera(robot.name, camera_pose(self.data, robot.camera), pinhole,
+                                 rgb, depth)
+            row: dict[str, Any] = {"name": robot.name, "camera": robot.camera,
+                                   "placed": p.target is not None,
+                                   "pose": pose_dict(self.data, robot.camera)}
+            if p.target is not None and p.ik is not None and p.commanded is not None:
+                row.update({
+                    "commanded_pose": {"position": p.commanded.tolist()},
+                    "target": p.target.summary(),
+                    "rating": p.rating,
+                    "ik": p.ik.summary(),
+                    **find_target(rgb, seg, p.target, self.model.geom(p.target.geom).id,
+                                  camera_pose(self.data, robot.camera), pinhole),
+                })
+            else:
+                row.update({"seen": False, "pixel": None})
+            row["candidates_tried"] = p.candidates_tried
+            row["rejections"] = dict(p.rejections)
+            rows.append(row)
         return rows
 
     def run(self, recorder: Recorder | None = None) -> tuple[dict[str, Any], str]:
@@ -298,16 +233,17 @@ class Episode:
         targets = self.scene.targets
         self.recorder.targets([t.name for t in targets], np.array([t.position for t in targets]),
                               [t.radius for t in targets])
-        mapping = self.scan()
-        placements: list[Placement] = []
-        taken: list[np.ndarray] = []
-        for robot in self.scene.robots:
-            self._tick()
-            p = self.place(robot, taken)
-            placements.append(p)
-            if p.commanded is not None:
-                taken.append(p.commanded)
-        robots = self.look(placements)
+        with Renderer(self.model, self.pinhole.width, self.pinhole.height) as renderer:
+            mapping = self.map(renderer)
+            placements: list[Placement] = []
+            taken: list[np.ndarray] = []
+            for robot in self.scene.robots:
+                self._tick()
+                p = self.place(robot, taken)
+                placements.append(p)
+                if p.commanded is not None:
+                    taken.append(p.commanded)
+            robots = self.look(placements, renderer)
         xml = self.scene.to_xml(self.data.qpos.copy())
         self.timer.totals["total"] = time.perf_counter() - t0
         summary = {
@@ -320,9 +256,7 @@ class Episode:
     # ------------------------------------------------------------ helpers
 
     def _set_robot(self, robot: Robot, qpos: np.ndarray) -> None:
-        """Put one robot's joints at their values in ``qpos`` (a full configuration)."""
-        self.data.qpos[robot.qpos_adr] = qpos[robot.qpos_adr]
-        mujoco.mj_forward(self.model, self.data)
+        self.scene.set_robot(self.data, robot, qpos)
 
     def _tick(self) -> None:
         self.step += 1

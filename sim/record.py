@@ -59,16 +59,39 @@ class Recorder:
             self.rec.log(f"{path}/depth", rr.DepthImage(np.where(np.isfinite(depth), depth, 0.0),
                                                         meter=1.0))
 
-    def grid(self, grid: OccupancyGrid, occupied: float = 0.5) -> None:
-        """Voxels with P > ``occupied`` as boxes coloured by probability."""
+    def grid(self, grid: OccupancyGrid, unknown: bool = False) -> None:
+        """Occupied voxels (P > 0.5) as boxes coloured by probability; with ``unknown``,
+        never-observed voxels too, as small grey points under ``world/grid/unknown``."""
         if self.rec is None:
             return
         p = grid.probability()
-        idx = np.argwhere(p > occupied)
+        idx = np.argwhere(p > 0.5)
         half = np.full((len(idx), 3), grid.resolution / 2)
         self.rec.log("world/grid", rr.Boxes3D(centers=grid.centers(idx), half_sizes=half,
                                               colors=_colormap(2 * p[tuple(idx.T)] - 1),
                                               fill_mode="solid"))
+        if unknown:
+            self.rec.log("world/grid/unknown",
+                         rr.Points3D(grid.centers(np.argwhere(grid.log_odds == 0)),
+                                     radii=grid.resolution / 6, colors=[150, 150, 150]))
+
+    def view(self, robot: str, T_world_cam: np.ndarray, pinhole: Pinhole, depth: float,
+             gain: float) -> None:
+        """A mapping view: its frustum (OpenCV pose) out to ``depth`` m, and its gain."""
+        if self.rec is None:
+            return
+        corners = np.array([[0, 0], [pinhole.width - 1, 0], [pinhole.width - 1,
+                            pinhole.height - 1], [0, pinhole.height - 1]], dtype=float)
+        rays = np.column_stack([(corners[:, 0] - pinhole.cx) / pinhole.fx,
+                                (corners[:, 1] - pinhole.cy) / pinhole.fy, np.ones(4)])
+        far = rays * depth @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+        apex = T_world_cam[:3, 3]
+        strips = [[apex, c] for c in far] + [[*far, far[0]]]
+        label = "start" if np.isnan(gain) else f"gain {gain:.1f} bits"
+        self.rec.log(f"world/{robot}/views", rr.LineStrips3D(strips, colors=[90, 200, 255],
+                                                            labels=[label] * len(strips)))
+        if not np.isnan(gain):
+            self.rec.log(f"gain/{robot}", rr.Scalars(gain))
 
     def candidates(self, robot: str, positions: np.ndarray, totals: np.ndarray) -> None:
         if self.rec is None:

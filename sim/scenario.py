@@ -47,7 +47,7 @@ def _positive(default: float) -> Any:
     return _check(lambda v: v > 0 and math.isfinite(v), "a number > 0", default)
 
 
-def _probability(default: float) -> Any:
+def _probability(default: float | None) -> Any:
     return _check(lambda v: 0 < v < 1, "a number strictly between 0 and 1", default)
 
 
@@ -131,27 +131,45 @@ class ObstacleConfig:
     yaw_deg: float = 0.0
 
 
+# Sensor models (hit, miss, clamp_min, clamp_max) per depth source. Rendered depth is
+# exact, so one observation is near-certain; stereo depth has holes and outliers, so it
+# takes several agreeing observations (five misses from unknown) to call a voxel free
+# below the rating's P < 0.05. OctoMap's own defaults (0.7, 0.4, 0.12, 0.97) clamp free
+# voxels at P = 0.12 and so could never mark a voxel free enough for the rating function.
+SENSOR_DEFAULTS = {
+    "render": (0.97, 0.04, 0.001, 0.999),
+    "stereo": (0.75, 0.35, 0.01, 0.99),
+}
+
+
 @dataclass(frozen=True)
 class GridConfig:
-    """Voxel occupancy grid and its log-odds sensor model (probabilities)."""
+    """Voxel occupancy grid and its log-odds sensor model (probabilities; unset: by source)."""
 
     resolution_m: float = _check(lambda v: 0.005 <= v <= 0.5, "metres in [0.005, 0.5]", 0.05)
     bounds_min: tuple[float, float, float] = (-1.5, -1.5, 0.0)
     bounds_max: tuple[float, float, float] = (1.5, 1.5, 1.8)
-    hit: float = _probability(0.97)
-    miss: float = _probability(0.04)
-    clamp_min: float = _probability(0.001)
-    clamp_max: float = _probability(0.999)
+    hit: float | None = _probability(None)
+    miss: float | None = _probability(None)
+    clamp_min: float | None = _probability(None)
+    clamp_max: float | None = _probability(None)
     max_range_m: float = _positive(4.0)
 
 
 @dataclass(frozen=True)
 class MappingConfig:
-    """Initial scan: each robot looks from its start pose at points around the target."""
+    """Cooperative mapping: views chosen by expected information, then rendered."""
 
-    views_per_robot: int = _check(lambda v: 1 <= v <= 50, "an integer 1 to 50", 5)
-    scan_spread_m: float = _nonnegative(0.5)
-    pixel_stride: int = _check(lambda v: 1 <= v <= 16, "an integer 1 to 16", 4)
+    depth_source: Literal["render", "stereo"] = "render"
+    strategy: Literal["cooperative", "single", "random"] = "cooperative"
+    gain: Literal["entropy", "unobserved", "rear_side"] = "entropy"
+    max_views: int = _check(lambda v: 1 <= v <= 200, "an integer 1 to 200", 12)  # all robots
+    entropy_threshold_bits: float = _check(lambda v: 0 <= v <= 1, "bits in [0, 1]", 0.4)
+    region_half_m: tuple[float, float, float] = (0.8, 0.8, 0.6)  # around the primary target
+    candidates_per_robot: int = _check(lambda v: 1 <= v <= 500, "an integer 1 to 500", 24)
+    gain_stride: int = _check(lambda v: 1 <= v <= 64, "an integer 1 to 64", 16)
+    pixel_stride: int = _check(lambda v: 1 <= v <= 16, "an integer 1 to 16", 2)
+    motion_weight: float = _nonnegative(0.0)  # rate views by gain / (1 + w * metres moved)
 
 
 @dataclass(frozen=True)
@@ -190,6 +208,13 @@ class Scenario:
     search: SearchConfig = field(default_factory=SearchConfig)
     source: str = "<defaults>"  # the file it was read from
 
+    def sensor(self) -> tuple[float, float, float, float]:
+        """(hit, miss, clamp_min, clamp_max): the grid's, else the depth source's defaults."""
+        g, default = self.grid, SENSOR_DEFAULTS[self.mapping.depth_source]
+        chosen = (g.hit, g.miss, g.clamp_min, g.clamp_max)
+        return tuple(d if c is None else c  # type: ignore[return-value]
+                     for c, d in zip(chosen, default, strict=True))
+
     def base_poses(self) -> tuple[BasePose, ...]:
         """One start pose per robot: the explicit ones, else evenly on a circle."""
         if self.robots.bases:
@@ -213,6 +238,8 @@ def _type_name(tp: Any) -> str:
     origin = typing.get_origin(tp)
     if origin is Literal:
         return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (types.UnionType, typing.Union):
+        return " or ".join(_type_name(a) for a in typing.get_args(tp) if a is not type(None))
     if origin is tuple:
         args = typing.get_args(tp)
         if len(args) == 2 and args[1] is Ellipsis:
@@ -245,7 +272,10 @@ def _convert(tp: Any, value: Any, key: str, source: str) -> Any:
             raise bad()
         return tuple(_convert(a, v, key, source) for a, v in zip(args, value, strict=True))
     if origin in (types.UnionType, typing.Union):
-        raise TypeError(f"unsupported field type {tp}")
+        inner = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(inner) != 1:
+            raise TypeError(f"unsupported field type {tp}")
+        return _convert(inner[0], value, key, source)
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, Mapping):
             raise bad()
@@ -302,9 +332,11 @@ def _validate(s: Scenario) -> None:
         if g.bounds_max[axis] - g.bounds_min[axis] < 2 * g.resolution_m:
             raise ScenarioError(src, "grid.bounds_max", list(g.bounds_max),
                                 "each bound at least two voxels above grid.bounds_min")
-    if not g.clamp_min < g.miss < 0.5 < g.hit < g.clamp_max:
-        raise ScenarioError(src, "grid.miss", g.miss,
-                            "clamp_min < miss < 0.5 < hit < clamp_max")
+    hit, miss, clamp_min, clamp_max = s.sensor()
+    if not clamp_min < miss < 0.5 < hit < clamp_max:
+        raise ScenarioError(src, "grid.miss", miss,
+                            f"grid.clamp_min < grid.miss < 0.5 < grid.hit < grid.clamp_max "
+                            f"(here {clamp_min}, {miss}, {hit}, {clamp_max})")
     if s.search.camera_z_m[0] >= s.search.camera_z_m[1]:
         raise ScenarioError(src, "search.camera_z_m", list(s.search.camera_z_m),
                             "[low, high] with low < high")

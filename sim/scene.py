@@ -115,6 +115,11 @@ class Scene:
         mujoco.mj_forward(self.model, data)
         return data
 
+    def set_robot(self, data: mujoco.MjData, robot: Robot, qpos: np.ndarray) -> None:
+        """Put one robot's joints at their values in ``qpos`` (a full configuration)."""
+        data.qpos[robot.qpos_adr] = qpos[robot.qpos_adr]
+        mujoco.mj_forward(self.model, data)
+
     def _ctrl_for(self, qpos: np.ndarray) -> np.ndarray:
         """Position-actuator set points that hold ``qpos``."""
         return qpos[self.model.jnt_qposadr[self.model.actuator_trnid[:, 0]]]
