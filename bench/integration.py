@@ -18,18 +18,18 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import median_time, print_table, write_results  # noqa: E402
+from common import median_time, print_table, write_results
 
-import sim  # noqa: E402,F401  (GL backend before mujoco)
-from mapping import (  # noqa: E402
+import sim  # noqa: F401  (GL backend before mujoco)
+from mapping import (
     OccupancyGrid,
     Pinhole,
     SensorModel,
     integrate_depth,
     opencv_pose,
 )
-from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario  # noqa: E402
-from sim.ik import solve_camera_pose  # noqa: E402
+from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
+from sim.ik import solve_camera_pose
 
 LO, HI, RES, RANGE = np.array([-2.0, -2.0, 0.0]), np.array([2.0, 2.0, 2.0]), 0.02, 4.0
 

@@ -4,26 +4,29 @@ from .camera import MUJOCO_TO_OPENCV, Pinhole, camera_to_world, opencv_pose, wor
 from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit
 from .integrate import integrate_depth
 from .raycast import first_hits, mark_free_image, traverse
+from .stereo import StereoSettings, stereo_depth
 from .views import GAINS, GainModel, View, mean_entropy, region_mask, view_rays
 
 __all__ = [
     "GAINS",
-    "GainModel",
-    "View",
-    "mean_entropy",
-    "region_mask",
-    "view_rays",
     "LOG_ODDS_SCALE",
     "MUJOCO_TO_OPENCV",
+    "GainModel",
     "OccupancyGrid",
     "Pinhole",
     "SensorModel",
+    "StereoSettings",
+    "View",
     "camera_to_world",
     "first_hits",
     "integrate_depth",
     "logit",
     "mark_free_image",
+    "mean_entropy",
     "opencv_pose",
+    "region_mask",
+    "stereo_depth",
     "traverse",
+    "view_rays",
     "world_to_camera",
 ]

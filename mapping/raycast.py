@@ -245,7 +245,8 @@ def _mark_free_image(origin: np.ndarray, R: np.ndarray, fx: float, fy: float, cx
         for k in range(item * BLOCKS_PER_ITEM, min(top, (item + 1) * BLOCKS_PER_ITEM)):
             # Threads take contiguous ranges of items: spread each over the image.
             b = (k * 7919) % top if top % 7919 else k
-            st_level[0], st_u[0], st_v[0], st_t[0] = levels, b % cols[levels], b // cols[levels], 0.0
+            st_level[0], st_t[0] = levels, 0.0
+            st_u[0], st_v[0] = b % cols[levels], b // cols[levels]
             n = 1
             while n > 0:
                 n -= 1

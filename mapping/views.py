@@ -11,9 +11,11 @@ up to ``max_range``. Gains, per ray, summed over the view:
 - ``rear_side``: the number of rays whose first occupied voxel is followed by a
   never-observed one (the rear side of known surfaces).
 
-Only voxels of interest (``weight`` > 0: the target region) count; every voxel
-attenuates. Voxels already expected to be seen by views chosen for this round carry no
-gain (``expected``), so robots choosing in turn do not duplicate each other's views.
+Only voxels of interest (the target region) count; every voxel attenuates. A view
+chosen for this round is expected to observe each voxel with its visibility: later
+views count a voxel only by the probability that no chosen view sees it (the product
+of 1 - visibility over the chosen views), so robots choosing in turn do not duplicate
+each other's views.
 """
 
 from __future__ import annotations
@@ -30,7 +32,6 @@ from .raycast import _max_steps, _walk
 
 GAINS = ("entropy", "unobserved", "rear_side")
 Gain = Literal["entropy", "unobserved", "rear_side"]
-VISIBLE = 0.5  # a voxel counts as seen by a view where its visibility exceeds this
 NEGLIGIBLE = 1e-3  # rays stop once their visibility falls below this
 
 
@@ -97,19 +98,24 @@ def _gains(origin: np.ndarray, dirs: np.ndarray, length: float, shape: tuple[int
     return out
 
 
-@nb.njit(cache=True, parallel=True)
-def _visible(origin: np.ndarray, dirs: np.ndarray, length: float, shape: tuple[int, int, int],
-             prob: np.ndarray, seen: np.ndarray, max_steps: int) -> None:
+@nb.njit(cache=True)
+def _visibility(origin: np.ndarray, dirs: np.ndarray, length: float,
+                shape: tuple[int, int, int], prob: np.ndarray, out: np.ndarray,
+                max_steps: int) -> None:
+    """Per voxel, the largest probability that one of the rays sees it (serial: the
+    maximum is taken in a fixed order)."""
+    buf = np.empty(max_steps, dtype=np.int64)
     no_stop = np.zeros(0, dtype=np.bool_)
-    for r in nb.prange(len(dirs)):
-        buf = np.empty(max_steps, dtype=np.int64)
+    for r in range(len(dirs)):
         c = _walk(origin, dirs[r], length, shape, buf, no_stop, 0.0)
         visible = 1.0
         for s in range(c):
-            if visible <= VISIBLE:
+            v = buf[s]
+            if visible > out[v]:
+                out[v] = visible
+            visible *= 1.0 - prob[v]
+            if visible < NEGLIGIBLE:
                 break
-            seen[buf[s]] = True
-            visible *= 1.0 - prob[buf[s]]
 
 
 @dataclass
@@ -124,17 +130,18 @@ class GainModel:
 
     def __post_init__(self) -> None:
         self.prob = self.grid.probability().reshape(-1).astype(np.float64)
-        self.expected = np.zeros(self.grid.size, dtype=bool)
+        # probability that no view chosen so far observes each voxel
+        self.unseen = np.ones(self.grid.size)
         self._entropy = self.grid.entropy().reshape(-1).astype(np.float64)
 
     def _weight(self, gain: Gain) -> np.ndarray:
         base = self._entropy if gain == "entropy" else np.ones(self.grid.size)
-        return np.where(self.interest.reshape(-1) & ~self.expected, base, 0.0)
+        return np.where(self.interest.reshape(-1), base * self.unseen, 0.0)
 
     def _cast(self, view: View) -> tuple[np.ndarray, np.ndarray, float]:
         origin = (view.position - self.grid.origin) / self.grid.resolution
-        return origin, view_rays(view, self.camera, self.stride), self.max_range / \
-            self.grid.resolution
+        length = self.max_range / self.grid.resolution
+        return origin, view_rays(view, self.camera, self.stride), length
 
     def gains(self, views: list[View], gain: Gain = "entropy") -> np.ndarray:
         """The gain of each view (bits for ``entropy``, voxel or ray counts otherwise)."""
@@ -147,14 +154,14 @@ class GainModel:
                             _max_steps(shape)).sum()
         return out
 
-    def expect(self, view: View) -> None:
-        """Count the voxels ``view`` will see as observed for the views chosen after it."""
-        self.expected |= self.seen_by(view)
-
-    def seen_by(self, view: View) -> np.ndarray:
-        """Flat bool per voxel: would ``view`` see it (visibility above 0.5)?"""
-        seen = np.zeros(self.grid.size, dtype=bool)
+    def visibility(self, view: View) -> np.ndarray:
+        """Flat, per voxel: the probability that ``view`` sees it."""
+        vis = np.zeros(self.grid.size)
         origin, dirs, length = self._cast(view)
-        _visible(origin, dirs, length, self.grid.shape, self.prob, seen,
-                 _max_steps(self.grid.shape))
-        return seen
+        _visibility(origin, dirs, length, self.grid.shape, self.prob, vis,
+                    _max_steps(self.grid.shape))
+        return vis
+
+    def expect(self, view: View) -> None:
+        """Take ``view`` as chosen: the views rated after it count what it may miss."""
+        self.unseen *= 1.0 - self.visibility(view)

@@ -28,7 +28,6 @@ from mapping import (
     OccupancyGrid,
     Pinhole,
     SensorModel,
-    integrate_depth,
     opencv_pose,
     world_to_camera,
 )

@@ -8,7 +8,7 @@ from typing import Literal
 import mujoco
 import numpy as np
 
-from mapping import Pinhole
+from mapping import Pinhole, stereo_depth
 
 from .render import Renderer
 from .scene import Robot
@@ -25,8 +25,6 @@ class DepthSensor:
     def depth(self, data: mujoco.MjData, robot: Robot) -> np.ndarray:
         if self.source == "render":
             return self.renderer.depth(data, robot.camera)
-        from mapping.stereo import stereo_depth
-
         left = self.renderer.rgb(data, robot.camera)
         right = self.renderer.rgb(data, robot.right_camera)
         return stereo_depth(left, right, self.pinhole, self.baseline_m)
