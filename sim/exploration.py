@@ -120,6 +120,7 @@ class Exploration:
                         self.s.mapping.pixel_stride)
         self.history.append(mean_entropy(self.grid, self.interest))
         self.taken.append({"robot": robot.name, "position": T[:3, 3].tolist(),
+                           "axis": T[:3, 2].tolist(),
                            "gain": None if math.isnan(gain) else gain,
                            "region_entropy_bits": self.history[-1]})
         if self.on_view is not None:
