@@ -3,13 +3,14 @@
 A view is a camera pose; its rays (every ``stride``-th pixel) are cast through the grid
 up to ``max_range``. Gains, per ray, summed over the view:
 
-- ``entropy`` (occlusion-aware, the paper's reference [16]): the sum over the voxels a
-  ray crosses of their entropy H(v) times the probability that v is visible, the
-  product of (1 - P) of the voxels before it;
-- ``unobserved``: the number of never-observed voxels a ray crosses before the first
+- ``entropy`` (occlusion-aware, the paper's reference [16]): the sum over the voxels
+  the rays cross of their entropy H(v) times the probability that v is visible, the
+  product of (1 - P) of the voxels before it on the ray (the best ray's, as each voxel
+  counts once per view however many rays cross it);
+- ``unobserved``: the number of never-observed voxels crossed before a ray's first
   occupied voxel (P > 0.5);
-- ``rear_side``: the number of rays whose first occupied voxel is followed by a
-  never-observed one (the rear side of known surfaces).
+- ``rear_side``: the number of never-observed voxels right behind a ray's first
+  occupied voxel (the rear side of known surfaces).
 
 Only voxels of interest (the target region) count; every voxel attenuates. A view
 chosen for this round is expected to observe each voxel with its visibility: later
@@ -65,45 +66,14 @@ def view_rays(view: View, camera: Pinhole, stride: int) -> np.ndarray:
     return rays @ view.T_world_cam[:3, :3].T
 
 
-@nb.njit(cache=True, parallel=True)
-def _gains(origin: np.ndarray, dirs: np.ndarray, length: float, shape: tuple[int, int, int],
-           prob: np.ndarray, weight: np.ndarray, mode: int, max_steps: int) -> np.ndarray:
-    n = len(dirs)
-    out = np.zeros(n)
-    no_stop = np.zeros(0, dtype=np.bool_)
-    for r in nb.prange(n):
-        buf = np.empty(max_steps, dtype=np.int64)
-        c = _walk(origin, dirs[r], length, shape, buf, no_stop, 0.0)
-        visible = 1.0
-        gain = 0.0
-        for s in range(c):
-            v = buf[s]
-            p = prob[v]
-            if mode == 0:
-                gain += weight[v] * visible
-                visible *= 1.0 - p
-                if visible < NEGLIGIBLE:
-                    break
-            elif mode == 1:
-                if p > 0.5:
-                    break
-                if p == 0.5:
-                    gain += weight[v]
-            else:
-                if p > 0.5:
-                    if s + 1 < c and prob[buf[s + 1]] == 0.5:
-                        gain += weight[buf[s + 1]]
-                    break
-        out[r] = gain
-    return out
-
-
 @nb.njit(cache=True)
-def _visibility(origin: np.ndarray, dirs: np.ndarray, length: float,
-                shape: tuple[int, int, int], prob: np.ndarray, out: np.ndarray,
-                max_steps: int) -> None:
-    """Per voxel, the largest probability that one of the rays sees it (serial: the
-    maximum is taken in a fixed order)."""
+def _footprint(origin: np.ndarray, dirs: np.ndarray, length: float,
+               shape: tuple[int, int, int], prob: np.ndarray, mode: int, out: np.ndarray,
+               max_steps: int) -> None:
+    """Per voxel, the most any ray of a view gives it (each voxel counts once per view):
+    mode 0, the probability it is visible; 1, whether it is a never-observed voxel before
+    the first occupied one; 2, whether it is the never-observed voxel right behind the
+    first occupied one. Serial, so the result is the same on every run."""
     buf = np.empty(max_steps, dtype=np.int64)
     no_stop = np.zeros(0, dtype=np.bool_)
     for r in range(len(dirs)):
@@ -111,11 +81,18 @@ def _visibility(origin: np.ndarray, dirs: np.ndarray, length: float,
         visible = 1.0
         for s in range(c):
             v = buf[s]
-            if visible > out[v]:
-                out[v] = visible
-            visible *= 1.0 - prob[v]
-            if visible < NEGLIGIBLE:
+            p = prob[v]
+            if mode == 0:
+                out[v] = max(out[v], visible)
+                visible *= 1.0 - p
+                if visible < NEGLIGIBLE:
+                    break
+            elif p > 0.5:
+                if mode == 2 and s + 1 < c and prob[buf[s + 1]] == 0.5:
+                    out[buf[s + 1]] = 1.0
                 break
+            elif mode == 1 and p == 0.5:
+                out[v] = 1.0
 
 
 @dataclass
@@ -143,25 +120,21 @@ class GainModel:
         length = self.max_range / self.grid.resolution
         return origin, view_rays(view, self.camera, self.stride), length
 
-    def gains(self, views: list[View], gain: Gain = "entropy") -> np.ndarray:
-        """The gain of each view (bits for ``entropy``, voxel or ray counts otherwise)."""
-        weight = self._weight(gain)
-        out = np.empty(len(views))
-        shape = self.grid.shape
-        for i, view in enumerate(views):
-            origin, dirs, length = self._cast(view)
-            out[i] = _gains(origin, dirs, length, shape, self.prob, weight, GAINS.index(gain),
-                            _max_steps(shape)).sum()
+    def footprint(self, view: View, gain: Gain = "entropy") -> np.ndarray:
+        """Flat, per voxel: what ``view`` gives it (see ``_footprint``); for ``entropy``,
+        the probability that the view sees it."""
+        out = np.zeros(self.grid.size)
+        origin, dirs, length = self._cast(view)
+        _footprint(origin, dirs, length, self.grid.shape, self.prob, GAINS.index(gain), out,
+                   _max_steps(self.grid.shape))
         return out
 
-    def visibility(self, view: View) -> np.ndarray:
-        """Flat, per voxel: the probability that ``view`` sees it."""
-        vis = np.zeros(self.grid.size)
-        origin, dirs, length = self._cast(view)
-        _visibility(origin, dirs, length, self.grid.shape, self.prob, vis,
-                    _max_steps(self.grid.shape))
-        return vis
+    def gains(self, views: list[View], gain: Gain = "entropy") -> np.ndarray:
+        """The gain of each view: the sum over the voxels of interest it reaches, each
+        once, of their weight (entropy in bits, or 1) times what the view gives them."""
+        weight = self._weight(gain)
+        return np.array([float(weight @ self.footprint(view, gain)) for view in views])
 
     def expect(self, view: View) -> None:
         """Take ``view`` as chosen: the views rated after it count what it may miss."""
-        self.unseen *= 1.0 - self.visibility(view)
+        self.unseen *= 1.0 - self.footprint(view)

@@ -88,7 +88,7 @@ def test_a_view_expected_to_be_taken_gains_little_more():
     m = GainModel(g, cam, np.ones(g.shape, dtype=bool), max_range=5.0, stride=1)
     here, elsewhere = along_x(0.05, 0.45, 0.25), along_x(0.05, 1.55, 0.25)
     before = m.gains([here, elsewhere])
-    vis = m.visibility(here)
+    vis = m.footprint(here)
     m.expect(here)
     after = m.gains([here, elsewhere])
     assert after[0] < 0.05 * before[0]
