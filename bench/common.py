@@ -5,9 +5,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import statistics
-import time
-from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -24,16 +21,6 @@ def machine() -> dict[str, Any]:
             versions[package] = None
     return {"platform": platform.platform(), "processor": platform.processor(),
             "cpus": os.cpu_count(), "python": platform.python_version(), **versions}
-
-
-def median_time(fn: Callable[[], object], repeat: int = 5) -> float:
-    """Median wall time (s) of ``repeat`` calls."""
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def write_results(name: str, rows: list[dict[str, Any]], **extra: Any) -> Path:

@@ -20,11 +20,11 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import print_table, write_results  # noqa: E402
+from common import print_table, write_results
 
-import sim  # noqa: E402,F401  (GL backend before mujoco)
-from sim import Renderer, load_scenario  # noqa: E402
-from sim.episode import Episode  # noqa: E402
+import sim  # noqa: F401  (GL backend before mujoco)
+from sim import Renderer, load_scenario
+from sim.episode import Episode
 
 STRATEGIES = {  # name: (strategy, gain)
     "cooperative entropy (taskcam)": ("cooperative", "entropy"),

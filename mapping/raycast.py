@@ -220,6 +220,16 @@ def _block_minima(lengths: np.ndarray, levels: int
     return minimum, pixel, offsets, rows, cols
 
 
+def image_working_bytes(rows: int, cols: int, levels: int) -> int:
+    """Memory (bytes) that sharing rays needs beside the grid: the float32 ray lengths,
+    and a float32 minimum and an int32 pixel per block of levels 1 to ``levels``."""
+    total = rows * cols * 4
+    for _ in range(levels):
+        rows, cols = (rows + 1) // 2, (cols + 1) // 2
+        total += rows * cols * 8
+    return total
+
+
 BLOCKS_PER_ITEM = 16  # top-level blocks per parallel work item
 
 

@@ -139,7 +139,8 @@ class Episode:
     def map(self, renderer: Renderer) -> dict[str, Any]:
         """Stage 1: cooperative mapping by expected information (sim/exploration.py)."""
         s = self.s
-        sensor = DepthSensor(renderer, self.pinhole, s.mapping.depth_source, s.camera.baseline_m)
+        sensor = DepthSensor(renderer, self.pinhole, s.mapping.depth_source, s.camera.baseline_m,
+                             self.scene.robot_geoms())
 
         def on_view(robot: Robot, T: np.ndarray, gain: float, depth: np.ndarray) -> None:
             self._tick()

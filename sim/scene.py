@@ -104,6 +104,11 @@ class Scene:
     targets: tuple[Target, ...]
     start_qpos: np.ndarray
 
+    def robot_geoms(self) -> np.ndarray:
+        """Bool per geom id: does it belong to a robot?"""
+        bodies = frozenset().union(*(r.body_ids for r in self.robots))
+        return np.array([int(b) in bodies for b in self.model.geom_bodyid])
+
     @property
     def primary(self) -> Target:
         return next(t for t in self.targets if t.role == "primary")

@@ -13,8 +13,8 @@ from sim import Renderer, load_scenario
 from sim.episode import Episode
 
 
-def explore(**mapping) -> tuple[Episode, dict]:
-    s = load_scenario()
+def explore(seed: int = 0, **mapping) -> tuple[Episode, dict]:
+    s = load_scenario(seed=seed)
     s = dataclasses.replace(s, mapping=dataclasses.replace(s.mapping, **mapping))
     episode = Episode(s)
     with Renderer(episode.model, episode.pinhole.width, episode.pinhole.height) as renderer:
@@ -27,11 +27,15 @@ def cooperative():
     return explore(max_views=8, entropy_threshold_bits=0.0)
 
 
-def test_region_entropy_never_rises(cooperative):
-    episode, summary = cooperative
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_region_entropy_never_rises_over_an_exploration(seed):
+    """The default exploration, to its threshold. (Long past it, voxels that straddle a
+    surface, seen free by one view and occupied by another, can raise the mean by a few
+    thousandths of a bit: bench/information_gain.py shows it.)"""
+    episode, summary = explore(seed)
     history = summary["region_entropy_history_bits"]
-    assert len(history) == summary["views_total"] + 1 == 9
-    assert all(b <= a + 1e-9 for a, b in zip(history, history[1:], strict=False))
+    assert len(history) == summary["views_total"] + 1
+    assert all(b <= a for a, b in zip(history, history[1:], strict=False))
     assert history[0] == pytest.approx(1.0)  # nothing known before the first view
     assert history[-1] == pytest.approx(mean_entropy(episode.grid, episode_interest(episode)))
 
