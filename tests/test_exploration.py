@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
@@ -35,7 +36,7 @@ def test_region_entropy_never_rises_over_an_exploration(seed):
     episode, summary = explore(seed)
     history = summary["region_entropy_history_bits"]
     assert len(history) == summary["views_total"] + 1
-    assert all(b <= a for a, b in zip(history, history[1:], strict=False))
+    assert all(b <= a for a, b in itertools.pairwise(history))
     assert history[0] == pytest.approx(1.0)  # nothing known before the first view
     assert history[-1] == pytest.approx(mean_entropy(episode.grid, episode_interest(episode)))
 
@@ -83,5 +84,5 @@ def test_single_robot_strategy_moves_only_the_first_robot():
 def test_stereo_mapping_also_never_raises_entropy():
     _, summary = explore(depth_source="stereo", max_views=4, entropy_threshold_bits=0.0)
     history = summary["region_entropy_history_bits"]
-    assert all(b <= a + 1e-9 for a, b in zip(history, history[1:], strict=False))
+    assert all(b <= a + 1e-9 for a, b in itertools.pairwise(history))
     assert history[-1] < 0.9
