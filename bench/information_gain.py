@@ -54,7 +54,7 @@ def views_to(history: list[float], threshold: float) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=14)
-    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--seeds", type=int, default=5)
     args = parser.parse_args()
     threshold = load_scenario().mapping.entropy_threshold_bits
     curves: dict[str, list[list[float]]] = {}

@@ -6,7 +6,9 @@ up to ``max_range``. Gains, per ray, summed over the view:
 - ``entropy`` (occlusion-aware, the paper's reference [16]): the sum over the voxels
   the rays cross of their entropy H(v) times the probability that v is visible, the
   product of (1 - P) of the voxels before it on the ray (the best ray's, as each voxel
-  counts once per view however many rays cross it);
+  counts once per view however many rays cross it). On the way, a never-observed voxel
+  may count with a prior ``unknown_occupancy`` instead of 0.5 (most space is empty), and
+  a voxel below ``free_below`` (the paper's P < 0.05: known empty) as empty;
 - ``unobserved``: the number of never-observed voxels crossed before a ray's first
   occupied voxel (P > 0.5);
 - ``rear_side``: the number of never-observed voxels right behind a ray's first
@@ -68,12 +70,13 @@ def view_rays(view: View, camera: Pinhole, stride: int) -> np.ndarray:
 
 @nb.njit(cache=True)
 def _footprint(origin: np.ndarray, dirs: np.ndarray, length: float,
-               shape: tuple[int, int, int], prob: np.ndarray, mode: int, out: np.ndarray,
-               max_steps: int) -> None:
+               shape: tuple[int, int, int], opacity: np.ndarray, state: np.ndarray, mode: int,
+               out: np.ndarray, max_steps: int) -> None:
     """Per voxel, the most any ray of a view gives it (each voxel counts once per view):
-    mode 0, the probability it is visible; 1, whether it is a never-observed voxel before
-    the first occupied one; 2, whether it is the never-observed voxel right behind the
-    first occupied one. Serial, so the result is the same on every run."""
+    mode 0, the probability it is visible (the product of 1 - ``opacity`` before it);
+    1, whether it is a never-observed voxel (``state`` 0) before the first occupied one
+    (``state`` 1); 2, whether it is the never-observed voxel right behind the first
+    occupied one. Serial, so the result is the same on every run."""
     buf = np.empty(max_steps, dtype=np.int64)
     no_stop = np.zeros(0, dtype=np.bool_)
     for r in range(len(dirs)):
@@ -81,17 +84,16 @@ def _footprint(origin: np.ndarray, dirs: np.ndarray, length: float,
         visible = 1.0
         for s in range(c):
             v = buf[s]
-            p = prob[v]
             if mode == 0:
                 out[v] = max(out[v], visible)
-                visible *= 1.0 - p
+                visible *= 1.0 - opacity[v]
                 if visible < NEGLIGIBLE:
                     break
-            elif p > 0.5:
-                if mode == 2 and s + 1 < c and prob[buf[s + 1]] == 0.5:
+            elif state[v] == 1:
+                if mode == 2 and s + 1 < c and state[buf[s + 1]] == 0:
                     out[buf[s + 1]] = 1.0
                 break
-            elif mode == 1 and p == 0.5:
+            elif mode == 1 and state[v] == 0:
                 out[v] = 1.0
 
 
@@ -104,9 +106,16 @@ class GainModel:
     interest: np.ndarray  # bool per voxel: the target region
     max_range: float = 3.0
     stride: int = 16
+    unknown_occupancy: float = 0.5  # P used for never-observed voxels on the way
+    free_below: float = 0.0  # voxels with P below this are empty on the way
 
     def __post_init__(self) -> None:
-        self.prob = self.grid.probability().reshape(-1).astype(np.float64)
+        prob = self.grid.probability().reshape(-1).astype(np.float64)
+        self.state = self.grid.states().reshape(-1)
+        # P(occupied) of the voxels a ray passes: the map's, except never-observed voxels
+        # (a prior instead of 0.5) and voxels known to be empty (0)
+        self.opacity = np.where(self.state == 0, self.unknown_occupancy,
+                                np.where(prob < self.free_below, 0.0, prob))
         # probability that no view chosen so far observes each voxel
         self.unseen = np.ones(self.grid.size)
         self._entropy = self.grid.entropy().reshape(-1).astype(np.float64)
@@ -125,8 +134,8 @@ class GainModel:
         the probability that the view sees it."""
         out = np.zeros(self.grid.size)
         origin, dirs, length = self._cast(view)
-        _footprint(origin, dirs, length, self.grid.shape, self.prob, GAINS.index(gain), out,
-                   _max_steps(self.grid.shape))
+        _footprint(origin, dirs, length, self.grid.shape, self.opacity, self.state,
+                   GAINS.index(gain), out, _max_steps(self.grid.shape))
         return out
 
     def gains(self, views: list[View], gain: Gain = "entropy") -> np.ndarray:

@@ -131,7 +131,7 @@ class Exploration:
     def choose_round(self, robots: tuple[Robot, ...]) -> list[_Chosen]:
         m = self.s.mapping
         model = GainModel(self.grid, self.pinhole, self.interest, self.s.grid.max_range_m,
-                          m.gain_stride)
+                          m.gain_stride, m.unknown_occupancy, self.s.rating.free_threshold)
         chosen = []
         for robot in robots:
             options = self.candidates(robot)

@@ -170,6 +170,9 @@ class MappingConfig:
     gain_stride: int = _check(lambda v: 1 <= v <= 64, "an integer 1 to 64", 16)
     pixel_stride: int = _check(lambda v: 1 <= v <= 16, "an integer 1 to 16", 2)
     motion_weight: float = _nonnegative(0.0)  # rate views by gain / (1 + w * metres moved)
+    # P(occupied) assumed for never-observed voxels that a gain's ray passes (most space
+    # is empty); 0.5 is the map's own value for them
+    unknown_occupancy: float = _probability(0.05)
 
 
 @dataclass(frozen=True)

@@ -96,3 +96,24 @@ def test_a_view_expected_to_be_taken_gains_little_more():
     layer = ((x > 0.6) & (x < 0.7)).reshape(-1) & (vis > 0)
     assert layer.sum() > 0 and np.all(vis[layer] > 0.99)  # the layer is in plain view
     assert np.allclose(m.unseen, 1 - vis)
+
+
+def test_prior_for_unknown_and_known_empty_voxels_on_the_way():
+    """With a prior occupancy q for never-observed voxels, the geometric series has ratio
+    1 - q; voxels below ``free_below`` let the ray through untouched."""
+    g = corridor_grid()
+    m = GainModel(g, ONE_RAY, np.ones(g.shape, dtype=bool), max_range=5.0, stride=1,
+                  unknown_occupancy=0.05)
+    assert m.gains([along_x(0.05)])[0] == pytest.approx(sum(0.95 ** k for k in range(20)),
+                                                         rel=1e-6)
+    free = np.zeros(g.shape, dtype=bool)
+    free[:10] = True
+    g.set_probability(0.04, free)
+    h = g.entropy().reshape(-1)
+    seen_through = GainModel(g, ONE_RAY, np.ones(g.shape, dtype=bool), max_range=5.0,
+                             stride=1, unknown_occupancy=0.05, free_below=0.05)
+    expected = h[0] * 10 + sum(0.95 ** k for k in range(10))
+    assert seen_through.gains([along_x(0.05)])[0] == pytest.approx(expected, rel=1e-4)
+    attenuated = GainModel(g, ONE_RAY, np.ones(g.shape, dtype=bool), max_range=5.0,
+                           stride=1, unknown_occupancy=0.05)
+    assert attenuated.gains([along_x(0.05)])[0] < expected
