@@ -29,6 +29,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path,
                      help="run directory (default: runs/<scenario>-seed<N>)")
     run.add_argument("--no-record", action="store_true", help="skip the rerun recording")
+    run.add_argument("--record-unknown", action="store_true",
+                     help="record never-observed voxels too (world/grid/unknown)")
     return parser
 
 
@@ -48,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     episode = Episode(scenario)  # builds the scene: the last check of the input
     out.mkdir(parents=True, exist_ok=True)
     recorder = Recorder(None if args.no_record else out / "run.rrd",
-                        recording_id=f"{scenario.name}-seed{scenario.seed}")
+                        recording_id=f"{scenario.name}-seed{scenario.seed}",
+                        unknown=args.record_unknown)
     start = time.perf_counter()
     _log(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
          f"{scenario.robots.count} robot(s)")

@@ -25,8 +25,9 @@ def _colormap(values: np.ndarray) -> np.ndarray:
 class Recorder:
     """Writes one ``.rrd`` file; a no-op when ``path`` is None."""
 
-    def __init__(self, path: Path | None, recording_id: str) -> None:
+    def __init__(self, path: Path | None, recording_id: str, unknown: bool = False) -> None:
         self.path = path
+        self.unknown = unknown  # record never-observed voxels with the grid
         self.rec: rr.RecordingStream | None = None
         if path is not None:
             self.rec = rr.RecordingStream("taskcam", recording_id=recording_id)
@@ -59,9 +60,10 @@ class Recorder:
             self.rec.log(f"{path}/depth", rr.DepthImage(np.where(np.isfinite(depth), depth, 0.0),
                                                         meter=1.0))
 
-    def grid(self, grid: OccupancyGrid, unknown: bool = False) -> None:
-        """Occupied voxels (P > 0.5) as boxes coloured by probability; with ``unknown``,
-        never-observed voxels too, as small grey points under ``world/grid/unknown``."""
+    def grid(self, grid: OccupancyGrid) -> None:
+        """Occupied voxels (P > 0.5) as boxes coloured by probability; if the recorder was
+        made with ``unknown``, never-observed voxels too, as small grey points under
+        ``world/grid/unknown``."""
         if self.rec is None:
             return
         p = grid.probability()
@@ -70,7 +72,7 @@ class Recorder:
         self.rec.log("world/grid", rr.Boxes3D(centers=grid.centers(idx), half_sizes=half,
                                               colors=_colormap(2 * p[tuple(idx.T)] - 1),
                                               fill_mode="solid"))
-        if unknown:
+        if self.unknown:
             self.rec.log("world/grid/unknown",
                          rr.Points3D(grid.centers(np.argwhere(grid.log_odds == 0)),
                                      radii=grid.resolution / 6, colors=[150, 150, 150]))

@@ -119,6 +119,16 @@ def test_recording_has_the_cameras_grid_and_ratings(default_run):
         assert path in paths, sorted(paths)
 
 
+def test_unknown_voxels_are_recorded_on_request(tmp_path):
+    from sim.cli import main
+
+    s = tmp_path / "small.toml"
+    s.write_text("[robots]\ncount = 1\n[mapping]\nmax_views = 1\n")
+    assert main(["run", str(s), "--out", str(tmp_path / "o"), "--record-unknown"]) == 0
+    paths = set(RrdReader(tmp_path / "o" / "run.rrd").store().schema().entity_paths())
+    assert "/world/grid/unknown" in paths
+
+
 def test_default_scenario_punishes_ignoring_occlusion():
     """Rated with TFV ignored (gamma = 0), the best view of the primary target is blocked
     by the scene's geometry: the default scenario is a real test of occlusion handling."""

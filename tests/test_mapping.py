@@ -165,3 +165,13 @@ def test_free_voxels_are_exactly_those_the_ray_crosses(x, y, z):
     touched = {v for v, length in overlap.items() if length > -1e-9}
     assert crossed <= ours <= touched
     assert flat[end_voxel] == HIT
+
+
+def test_invalid_pixels_change_nothing():
+    g = small_grid()
+    cam = Pinhole.from_fovy(math.radians(40), 32, 24)
+    depth = np.full((24, 32), np.nan)
+    depth[:, :10] = -1.0
+    depth[:, 10:20] = 0.0
+    assert integrate_depth(g, depth, cam, looking_down(2.0), max_range=5.0) == (0, 0)
+    assert not g.log_odds.any()
