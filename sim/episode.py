@@ -1,8 +1,8 @@
-"""One episode: scan from the start poses, map, place each camera, move there, look.
+"""One episode: map cooperatively, place each camera, move there, look.
 
 The stages, in order:
-1. every robot looks from its start pose (base still, gaze by IK) at points around
-   the primary target and integrates the rendered depth into the occupancy grid;
+1. the robots map the target region into the occupancy grid, choosing views by
+   expected information (sim/exploration.py);
 2. robot by robot, the rating function is searched over known-free voxels; the best
    candidates are tried in turn until one is reachable by IK (base and arm), keeps
    clear of everything, and sees its target with no geometry in the way;

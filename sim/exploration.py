@@ -55,6 +55,13 @@ class Candidate:
     motion_m: float  # camera displacement from where it is now
 
 
+@dataclass(frozen=True)
+class _Chosen:
+    robot: Robot
+    qpos: np.ndarray
+    gain: float
+
+
 class Exploration:
     """Runs the mapping stage of an episode on its scene, data and grid."""
 
@@ -178,10 +185,3 @@ class Exploration:
                                      float(np.linalg.norm(T[:3, 3] - camera_now))))
         scene.set_robot(data, robot, here)
         return out
-
-
-@dataclass(frozen=True)
-class _Chosen:
-    robot: Robot
-    qpos: np.ndarray
-    gain: float
