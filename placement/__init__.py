@@ -1,5 +1,6 @@
 """Camera placement: the rating function (eq. 1-4), visibility and search. Free of MuJoCo."""
 
+from .occluders import Hull, expand, expanded_hulls, grid_occluders, target_outline
 from .rating import (
     CameraModel,
     Ratings,
@@ -10,22 +11,32 @@ from .rating import (
     rate,
     resolution,
 )
-from .search import RatingField, Region, candidates, search, target_points
+from .search import RatingField, Region, SearchSettings, candidates, search, target_points
+from .tfv import ClearanceMap, clearance_map, hull_depths
 from .visibility import line_of_sight
 
 __all__ = [
     "CameraModel",
+    "ClearanceMap",
+    "Hull",
     "RatingField",
     "Ratings",
     "Region",
+    "SearchSettings",
     "TargetModel",
     "Weights",
     "angular_visibility",
     "candidates",
+    "clearance_map",
     "depth_of_field",
+    "expand",
+    "expanded_hulls",
+    "grid_occluders",
+    "hull_depths",
     "line_of_sight",
     "rate",
     "resolution",
     "search",
+    "target_outline",
     "target_points",
 ]

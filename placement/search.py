@@ -1,33 +1,63 @@
-"""Exhaustive search of the rating function over known-free voxels, for several targets."""
+"""Searching the rating function over known-free voxels, for several targets (sec. 3).
+
+Strategies: ``exhaustive`` rates every candidate; ``coarse`` every ``coarse_step``-th
+voxel along each axis; ``bounded`` only candidates within ``max_distance`` of a target;
+``random`` a random subset of ``samples`` candidates. Each returns the rating field of
+what it evaluated; each candidate keeps the target that rates it best (sec. 2.3.5).
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
+from typing import Literal
 
 import numpy as np
 
 from mapping import OccupancyGrid
 
+from .occluders import Hull, expanded_hulls, grid_occluders
 from .rating import CameraModel, Ratings, TargetModel, Weights, rate
-from .visibility import line_of_sight
+from .tfv import clearance_map
+
+Strategy = Literal["exhaustive", "coarse", "bounded", "random"]
 
 
 @dataclass(frozen=True)
 class Region:
-    """Where a camera may go: heights (m) and spheres (centre, radius) to keep out of."""
+    """Where a camera may go: heights (m), spheres (centre, radius) to keep out of, and a
+    horizontal disc (centre x, y; radius) to stay within."""
 
     z_min: float = -np.inf
     z_max: float = np.inf
     keep_out: tuple[tuple[tuple[float, float, float], float], ...] = ()
+    within: tuple[tuple[float, float], float] | None = None
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    strategy: Strategy = "exhaustive"
+    coarse_step: int = 2  # voxels, for "coarse"
+    max_distance: float = np.inf  # m from the nearest target, for "bounded"
+    samples: int = 2000  # candidates, for "random"
+    unknown_occludes: bool = True  # never-observed voxels count as occluders
+    block: int = 4  # voxels a side of the pieces an occluder is hulled in
+    directions: int = 16384  # of the sphere TFV is computed on
+    levels: int = 48  # distances TFV is computed at, over the depth of field
 
 
 @dataclass(frozen=True)
 class RatingField:
-    """The rating of every candidate, each for the target that rates it best."""
+    """The rating of every evaluated candidate, each for the target that rates it best."""
 
     ratings: Ratings
     target: np.ndarray  # index into the targets searched, per candidate
+    strategy: str = "exhaustive"
+    hulls: dict[str, list[Hull]] = field(default_factory=dict)  # expanded, per target
+
+    @property
+    def evaluated(self) -> int:
+        return len(self.target)
 
     def ranked(self) -> np.ndarray:
         """Indices of candidates with a positive rating, best first (ties by index)."""
@@ -58,6 +88,9 @@ def candidates(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: Came
     keep = (pos[:, 2] >= region.z_min) & (pos[:, 2] <= region.z_max)
     for centre, radius in region.keep_out:
         keep &= np.linalg.norm(pos - np.asarray(centre), axis=1) >= radius
+    if region.within is not None:
+        (cx, cy), radius = region.within
+        keep &= np.hypot(pos[:, 0] - cx, pos[:, 1] - cy) <= radius
     in_field = np.zeros(len(pos), dtype=bool)
     for t in targets:
         d = np.linalg.norm(pos - t.position, axis=1)
@@ -67,24 +100,46 @@ def candidates(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: Came
     return pos[keep], p[idx[:, 0], idx[:, 1], idx[:, 2]]
 
 
+def _select(grid: OccupancyGrid, positions: np.ndarray, targets: Sequence[TargetModel],
+            settings: SearchSettings, rng: np.random.Generator | None) -> np.ndarray:
+    """Which candidates the strategy evaluates (a boolean mask)."""
+    if settings.strategy == "coarse":
+        idx = grid.index(positions)
+        return np.all(idx % settings.coarse_step == 0, axis=1)
+    if settings.strategy == "bounded":
+        d = np.min([np.linalg.norm(positions - t.position, axis=1) for t in targets], axis=0)
+        return d <= settings.max_distance
+    if settings.strategy == "random":
+        if rng is None:
+            raise ValueError("the random search strategy needs a random generator")
+        keep = np.zeros(len(positions), dtype=bool)
+        keep[rng.choice(len(positions), min(settings.samples, len(positions)),
+                        replace=False)] = True
+        return keep
+    return np.ones(len(positions), dtype=bool)
+
+
 def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraModel,
            weights: Weights = Weights(), free_threshold: float = 0.05,
-           occluding_threshold: float = 0.5, region: Region = Region()) -> RatingField:
-    """Rate every candidate voxel for every target; keep each candidate's best target.
+           region: Region = Region(), settings: SearchSettings = SearchSettings(),
+           rng: np.random.Generator | None = None,
+           extra_occluders: Sequence[np.ndarray] = ()) -> RatingField:
+    """Rate the candidates the strategy picks, for every target; keep each one's best.
 
-    TFV here is the fraction of the target's centre and rim points in line of sight
-    through the grid (unknown and occupied voxels block).
+    ``extra_occluders`` are point sets (m), e.g. other robots' bodies, each hulled after
+    expansion by the target like the grid's occluders.
     """
     positions, occupancy = candidates(grid, targets, camera, free_threshold, region)
-    rated = []
+    keep = _select(grid, positions, targets, settings, rng)
+    positions, occupancy = positions[keep], occupancy[keep]
+    rated, hulls = [], {}
     for target in targets:
-        tfv = np.zeros(len(positions))
-        # Lines of sight only where the other terms leave the rating positive.
-        rest = rate(positions, target, camera, np.ones(len(positions)), occupancy, weights)
-        live = rest.total > 0
-        seen = line_of_sight(grid, positions[live], target_points(target), occluding_threshold,
-                             stop_short=1.5 * grid.resolution)
-        tfv[live] = seen.mean(axis=1)
+        pieces = grid_occluders(grid, target, unknown_occludes=settings.unknown_occludes,
+                                block=settings.block)
+        hulls[target.name] = expanded_hulls([*pieces, *extra_occluders], target)
+        tfv = clearance_map(target.position, hulls[target.name], camera.near, camera.far,
+                            settings.levels, settings.directions
+                            ).tfv(positions - target.position)
         rated.append(rate(positions, target, camera, tfv, occupancy, weights))
     which = np.argmax(np.stack([r.total for r in rated]), axis=0)  # first best on ties
     cols = np.arange(len(positions))
@@ -93,4 +148,4 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
         return np.stack([getattr(r, name) for r in rated])[which, cols]
 
     terms = {f.name: pick(f.name) for f in fields(Ratings) if f.name != "positions"}
-    return RatingField(Ratings(positions=positions, **terms), which)
+    return RatingField(Ratings(positions=positions, **terms), which, settings.strategy, hulls)

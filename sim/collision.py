@@ -50,3 +50,15 @@ def blocked_rays(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot,
         if geomid[0] >= 0 and hit < dist - 1e-4:
             count += 1
     return count
+
+
+def robot_points(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot) -> list[np.ndarray]:
+    """The corners (8, 3) of each of the robot's collision geoms' bounding boxes, in the
+    world (m): the robot as a set of convex occluders."""
+    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+    out = []
+    for g in _collision_geoms(model, robot.body_ids):
+        centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
+        local = centre + signs * half
+        out.append(data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T)
+    return out

@@ -31,9 +31,17 @@ from mapping import (
     opencv_pose,
     world_to_camera,
 )
-from placement import CameraModel, Region, TargetModel, Weights, search, target_points
+from placement import (
+    CameraModel,
+    Region,
+    SearchSettings,
+    TargetModel,
+    Weights,
+    search,
+    target_points,
+)
 
-from .collision import blocked_rays, clearance
+from .collision import blocked_rays, clearance, robot_points
 from .exploration import Exploration
 from .ik import IKResult, solve_camera_pose
 from .record import Recorder
@@ -43,6 +51,7 @@ from .scene import Robot, Scene, Target, build_scene
 from .sensing import DepthSensor
 
 VERSION = "0.1.0"
+REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
 
 
 class Timer:
@@ -69,7 +78,9 @@ class Placement:
     commanded: np.ndarray | None = None
     rating: dict[str, float] = field(default_factory=dict)
     ik: IKResult | None = None
-    candidates_tried: int = 0
+    strategy: str = "exhaustive"
+    evaluated: int = 0  # candidates the search rated
+    candidates_tried: int = 0  # of them, tried with IK
     rejections: dict[str, int] = field(default_factory=lambda: defaultdict(int))
 
 
@@ -159,19 +170,31 @@ class Episode:
         s = self.s
         targets = self.scene.targets
         keep_out = tuple((tuple(p), s.search.robot_separation_m) for p in taken)
-        region = Region(s.search.camera_z_m[0], s.search.camera_z_m[1], keep_out)
-        r = s.rating
+        base = self.data.qpos[robot.qpos_adr[:2]]
+        region = Region(s.search.camera_z_m[0], s.search.camera_z_m[1], keep_out,
+                        ((float(base[0]), float(base[1])), s.search.reach_m))
+        r, q = s.rating, s.search
+        settings = SearchSettings(q.strategy, q.coarse_step, q.max_distance_m, q.samples,
+                                  r.unknown_occludes, r.hull_block)
+        others = [pts for other in self.scene.robots if other is not robot
+                  for pts in robot_points(self.model, self.data, other)]
         with self.timer("placement"):
             field_ = search(self.grid, [target_model(t) for t in targets], self.camera_model,
                             Weights(r.alpha, r.beta, r.gamma, r.delta), r.free_threshold,
-                            r.occluding_threshold, region)
+                            region, settings, self.rng, others)
         self.recorder.candidates(robot.name, field_.ratings.positions, field_.ratings.total)
-        result = Placement(robot)
+        result = Placement(robot, strategy=field_.strategy, evaluated=field_.evaluated)
         start = self.data.qpos.copy()
-        for i in field_.ranked()[: s.search.ik_candidates]:
-            result.candidates_tried += 1
+        rejected: list[np.ndarray] = []
+        for i in field_.ranked():
+            if result.candidates_tried >= s.search.ik_candidates:
+                break
             target = targets[int(field_.target[i])]
             position = field_.ratings.positions[i]
+            if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in rejected):
+                continue  # next to a candidate that failed: try somewhere else
+            result.candidates_tried += 1
+            rejected.append(position)
             with self.timer("ik"):
                 ik = solve_camera_pose(self.model, start, robot, target.position, position,
                                        move_base=s.robots.move_base)
@@ -189,6 +212,7 @@ class Episode:
             result.target, result.commanded, result.ik = target, position, ik
             result.rating = field_.ratings.terms(int(i))
             self.recorder.chosen(robot.name, position, target.position, target.name)
+            self.recorder.hulls(robot.name, field_.hulls[target.name])
             return result
         self._set_robot(robot, start)
         return result
@@ -220,6 +244,7 @@ class Episode:
                 })
             else:
                 row.update({"seen": False, "pixel": None})
+            row["search"] = {"strategy": p.strategy, "candidates_evaluated": p.evaluated}
             row["candidates_tried"] = p.candidates_tried
             row["rejections"] = dict(p.rejections)
             rows.append(row)

@@ -102,6 +102,16 @@ class Recorder:
         self.rec.log(f"world/{robot}/candidates",
                      rr.Points3D(positions, colors=_colormap(scale), radii=0.01))
 
+    def hulls(self, robot: str, hulls: list) -> None:
+        """The expanded occluder hulls the chosen target was rated against."""
+        if self.rec is None or not hulls:
+            return
+        tris = np.concatenate([h.triangles for h in hulls]).reshape(-1, 3)
+        self.rec.log(f"world/{robot}/hulls",
+                     rr.Mesh3D(vertex_positions=tris,
+                               triangle_indices=np.arange(len(tris)).reshape(-1, 3),
+                               albedo_factor=[0.9, 0.3, 0.3, 0.35]))
+
     def chosen(self, robot: str, position: np.ndarray, target: np.ndarray, label: str) -> None:
         if self.rec is not None:
             self.rec.log(f"world/{robot}/chosen",

@@ -184,16 +184,23 @@ class RatingConfig:
     gamma: float = _nonnegative(1.0)  # target field visibility
     delta: float = _nonnegative(1.0)  # target angular visibility
     free_threshold: float = _probability(0.05)  # candidate voxels: P below this
-    occluding_threshold: float = _probability(0.5)  # lines of sight blocked at P >= this
+    unknown_occludes: bool = True  # never-observed voxels count as occluders for TFV
+    hull_block: int = _check(lambda v: 1 <= v <= 64, "an integer 1 to 64", 4)  # voxels
 
 
 @dataclass(frozen=True)
 class SearchConfig:
-    strategy: Literal["exhaustive"] = "exhaustive"
+    strategy: Literal["exhaustive", "coarse", "bounded", "random"] = "exhaustive"
+    coarse_step: int = _check(lambda v: 1 <= v <= 16, "an integer 1 to 16", 2)
+    max_distance_m: float = _positive(1.0)  # for "bounded": from the nearest target
+    samples: int = _check(lambda v: v >= 1, "an integer >= 1", 2000)  # for "random"
     ik_candidates: int = _check(lambda v: 1 <= v <= 1000, "an integer 1 to 1000", 40)
     robot_separation_m: float = _nonnegative(0.5)  # between chosen camera positions
     clearance_m: float = _nonnegative(0.03)  # robot geometry to anything else, after IK
     camera_z_m: tuple[float, float] = (0.3, 1.6)  # heights the camera may be placed at
+    # Cameras go within this horizontal distance of where the robot's base stands (its
+    # arm's reach plus how far it may drive): IK does not plan around obstacles yet.
+    reach_m: float = _positive(2.0)
 
 
 @dataclass(frozen=True)
@@ -343,9 +350,6 @@ def _validate(s: Scenario) -> None:
     if s.search.camera_z_m[0] >= s.search.camera_z_m[1]:
         raise ScenarioError(src, "search.camera_z_m", list(s.search.camera_z_m),
                             "[low, high] with low < high")
-    if s.rating.free_threshold >= s.rating.occluding_threshold:
-        raise ScenarioError(src, "rating.free_threshold", s.rating.free_threshold,
-                            "less than rating.occluding_threshold")
     targets = s.workpiece.targets
     primaries = [t for t in targets if t.role == "primary"]
     if len(primaries) != 1:

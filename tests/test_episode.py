@@ -138,8 +138,7 @@ def test_default_scenario_punishes_ignoring_occlusion():
     s = episode.s
     primary = episode.scene.primary
     field = search(episode.grid, [target_model(primary)], episode.camera_model,
-                   Weights(gamma=0.0), s.rating.free_threshold, s.rating.occluding_threshold,
-                   Region(*s.search.camera_z_m))
+                   Weights(gamma=0.0), s.rating.free_threshold, Region(*s.search.camera_z_m))
     best = field.ratings.positions[field.ranked()[0]]
     vec = primary.position + 0.001 * primary.normal - best
     geomid = np.zeros(1, np.int32)

@@ -1,0 +1,108 @@
+"""Occluders for target field visibility: grid components, expanded by the target, hulled.
+
+The paper's first two steps (sec. 2.3.3): the finite target is reduced to a point while
+each occluder is expanded by the target's extent (the Minkowski sum of occluder and
+target), and each expanded occluder is replaced by its convex hull.
+
+Occluders come from the grid as connected components (26-neighbourhood) of occupied
+voxels (and, by default, never-observed ones) lying wholly above the target's plane
+(what is below it cannot hide a target that faces up from it). A
+component is split into blocks of at most ``block`` voxels a side before hulling, so
+that a non-convex occluder (a beam on two posts) does not become one hull that swallows
+the space it surrounds. Other robots' bodies come as point sets, one hull each.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError
+
+from mapping import OccupancyGrid
+
+from .rating import TargetModel
+
+CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
+
+
+@dataclass(frozen=True)
+class Hull:
+    """A convex polytope: ``A x <= b`` (outward unit normals), with its vertices (m)."""
+
+    A: np.ndarray  # (f, 3)
+    b: np.ndarray  # (f,)
+    vertices: np.ndarray  # (v, 3)
+    triangles: np.ndarray  # (t, 3, 3) the hull's surface, for drawing
+
+    def contains(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        return np.all(np.atleast_2d(points) @ self.A.T <= self.b + tol, axis=1)
+
+
+def target_outline(target: TargetModel, sides: int = 8) -> np.ndarray:
+    """Offsets (sides, 3) of a polygon in the target's plane that contains its disc (the
+    polygon circumscribes the circle of the target's radius)."""
+    n = target.normal / np.linalg.norm(target.normal)
+    helper = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
+    u = np.cross(n, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    r = target.radius / np.cos(np.pi / sides)
+    return r * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+
+
+def hull_of(points: np.ndarray) -> Hull | None:
+    """Convex hull of a point set; None if it is flat or too small to hull."""
+    try:
+        h = ConvexHull(points)
+    except (QhullError, ValueError):
+        return None
+    return Hull(h.equations[:, :3], -h.equations[:, 3], points[h.vertices],
+                points[h.simplices])
+
+
+def expand(points: np.ndarray, target: TargetModel, sides: int = 8) -> Hull | None:
+    """The hull of ``points`` expanded by the target: hull(points + target outline)."""
+    outline = np.vstack([target_outline(target, sides), np.zeros((1, 3))])
+    return hull_of((points[:, None, :] + outline[None, :, :]).reshape(-1, 3))
+
+
+def grid_occluders(grid: OccupancyGrid, target: TargetModel, occupied: float = 0.5,
+                   unknown_occludes: bool = True, block: int = 4) -> list[np.ndarray]:
+    """Corner points (m) of each occluder piece: components of occupied (and unknown)
+    voxels above the target's plane, split into blocks of ``block`` voxels a side."""
+    p = grid.probability()
+    solid = p > occupied
+    if unknown_occludes:
+        solid |= grid.log_odds == 0
+    n = target.normal / np.linalg.norm(target.normal)
+    # whole voxels above the plane: the lowest corner of each is above it
+    lowest = (grid.centers() - target.position) @ n - 0.5 * grid.resolution * np.abs(n).sum()
+    solid &= lowest > 0.0
+    labels, count = ndimage.label(solid, structure=np.ones((3, 3, 3), dtype=bool))
+    if count == 0:
+        return []
+    idx = np.argwhere(labels > 0)
+    piece = labels[tuple(idx.T)].astype(np.int64)
+    cell = idx // block
+    keys = ((piece * 4096 + cell[:, 0]) * 4096 + cell[:, 1]) * 4096 + cell[:, 2]
+    order = np.argsort(keys, kind="stable")
+    keys, idx = keys[order], idx[order]
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    pieces = []
+    for lo, hi in zip(starts, np.r_[starts[1:], len(keys)], strict=True):
+        corners = (idx[lo:hi, None, :] + CORNERS[None]).reshape(-1, 3)
+        pieces.append(grid.origin + np.unique(corners, axis=0) * grid.resolution)
+    return pieces
+
+
+def expanded_hulls(pieces: list[np.ndarray], target: TargetModel) -> list[Hull]:
+    """Step (i) and (ii): each piece expanded by the target, then its convex hull."""
+    hulls = []
+    for points in pieces:
+        h = expand(points, target)
+        if h is not None:
+            hulls.append(h)
+    return hulls

@@ -1,0 +1,135 @@
+"""Target field visibility: occlusion expansion, hulls, the sphere, against brute force."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mapping import OccupancyGrid, SensorModel
+from placement import (
+    CameraModel,
+    SearchSettings,
+    TargetModel,
+    Weights,
+    clearance_map,
+    expand,
+    expanded_hulls,
+    grid_occluders,
+    rate,
+    search,
+    target_outline,
+)
+
+UP = np.array([0.0, 0.0, 1.0])
+TARGET = TargetModel("t", np.zeros(3), UP, 0.03)
+BOX = np.array([[x, y, z] for x in (0.3, 0.5) for y in (-0.1, 0.1) for z in (0.05, 0.6)])
+
+
+def test_expanded_hull_contains_the_minkowski_sum():
+    hull = expand(BOX, TARGET)
+    rng = np.random.default_rng(0)
+    inside = rng.uniform(BOX.min(0), BOX.max(0), (500, 3))
+    angle = rng.uniform(0, 2 * np.pi, 500)
+    radius = TARGET.radius * np.sqrt(rng.uniform(0, 1, 500))
+    disc = np.column_stack([radius * np.cos(angle), radius * np.sin(angle), np.zeros(500)])
+    assert hull.contains(inside + disc, tol=1e-9).all()
+    assert hull.contains(BOX + target_outline(TARGET)[0]).all()
+    assert not hull.contains(np.array([[0.0, 0.0, 0.3], [0.4, 0.0, 0.7]])).any()
+
+
+def brute_clearance(hulls, offset: np.ndarray, samples: int = 400_000) -> float:
+    """Angle from the camera's direction to the nearest direction occluded closer than its
+    distance, by dense random directions and exact ray-hull intersection."""
+    rng = np.random.default_rng(1)
+    u = rng.normal(size=(samples, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    d = np.linalg.norm(offset)
+    occluded = np.zeros(samples, dtype=bool)
+    for h in hulls:
+        rate_ = u @ h.A.T  # (n, f)
+        room = h.b[None, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = room / rate_
+        enter = np.where(rate_ < 0, s, 0.0).max(axis=1, initial=0.0)
+        leave = np.where(rate_ > 0, s, np.inf).min(axis=1, initial=np.inf)
+        occluded |= (enter <= leave) & (enter < d)
+    if not occluded.any():
+        return math.pi
+    cos = u[occluded] @ (offset / d)
+    return float(np.arccos(np.clip(cos.max(), -1, 1)))
+
+
+@pytest.mark.parametrize("azimuth_deg", [0.0, 20.0, 40.0, 90.0, 180.0])
+@pytest.mark.parametrize("distance", [0.4, 1.0])
+def test_tfv_is_the_angular_clearance(azimuth_deg, distance):
+    hulls = expanded_hulls([BOX], TARGET)
+    cmap = clearance_map(TARGET.position, hulls, 0.35, 1.5, levels=116)
+    a = math.radians(azimuth_deg)
+    offset = distance * np.array([math.cos(a) * math.cos(0.5), math.sin(a) * math.cos(0.5),
+                                  math.sin(0.5)])
+    ours = cmap.tfv(offset[None])[0]
+    truth = brute_clearance(hulls, offset) / math.pi
+    assert ours == pytest.approx(truth, abs=0.02)  # sphere and distance quantisation
+
+
+def test_tfv_is_zero_behind_the_occluder_and_grows_away_from_it():
+    cmap = clearance_map(TARGET.position, expanded_hulls([BOX], TARGET), 0.35, 1.5)
+    arc = np.radians(np.arange(0, 181, 10))
+    offsets = 1.0 * np.column_stack([np.cos(arc), np.sin(arc), np.full(len(arc), 0.3)])
+    tfv = cmap.tfv(offsets)
+    assert tfv[0] == 0.0  # straight behind the box
+    assert np.all(np.diff(tfv) >= -1e-9) and tfv[-1] > tfv[3] > 0
+
+
+def test_nothing_in_the_way_means_full_visibility():
+    cmap = clearance_map(TARGET.position, [], 0.35, 1.5)
+    assert np.all(cmap.tfv(np.array([[0.5, 0.0, 0.5], [0.0, -1.0, 0.2]])) == 1.0)
+
+
+def test_occluders_from_the_grid_are_above_the_plane_and_split_in_blocks():
+    g = OccupancyGrid.from_bounds(np.array([-1.0, -1.0, -0.5]), np.array([1.0, 1.0, 1.0]),
+                                  0.05, SensorModel())
+    g.set_probability(0.01)
+    c = g.centers()
+    g.set_probability(0.99, c[..., 2] < 0)  # the table under the target
+    g.set_probability(0.99, (np.abs(c[..., 0] - 0.4) < 0.1) & (np.abs(c[..., 1]) < 0.1)
+                      & (c[..., 2] > 0.05) & (c[..., 2] < 0.6))  # a block beside it
+    pieces = grid_occluders(g, TARGET, block=4)
+    points = np.vstack(pieces)
+    assert points[:, 2].min() >= 0.0  # nothing below the target's plane
+    assert all(np.ptp(p, axis=0).max() <= 4 * 0.05 + 1e-9 for p in pieces)
+    g.set_probability(0.5, (np.abs(c[..., 0] + 0.5) < 0.1) & (c[..., 2] > 0.2) & (c[..., 2] < 0.4))
+    assert len(grid_occluders(g, TARGET)) > len(pieces)  # unknown voxels occlude
+    assert len(grid_occluders(g, TARGET, unknown_occludes=False)) == len(pieces)
+
+
+def test_rating_is_zero_whenever_a_factor_is():
+    camera = CameraModel(math.radians(60), 480, 0.4, 1.5)
+    pos = np.array([[0.3, 0.0, 0.5], [0.0, 0.0, 2.0], [0.5, 0.0, -0.1], [0.3, 0.0, 0.5]])
+    r = rate(pos, TARGET, camera, np.array([0.0, 1.0, 1.0, 1.0]), np.array([0, 0, 0, 1.0]))
+    assert r.tfv[0] == 0 and r.dof[1] == 0 and r.tav[2] == 0 and r.free[3] == 0
+    assert np.all(r.total == 0)
+    w = rate(pos[:1], TARGET, camera, np.array([0.0]), np.zeros(1), Weights(gamma=0.0))
+    assert w.total[0] > 0  # with gamma = 0, TFV no longer matters
+
+
+def test_random_search_covering_every_candidate_equals_exhaustive():
+    g = OccupancyGrid.from_bounds(np.array([-0.8, -0.8, -0.2]), np.array([0.8, 0.8, 1.0]),
+                                  0.1, SensorModel())
+    g.set_probability(0.01)
+    c = g.centers()
+    g.set_probability(0.99, c[..., 2] < 0)
+    g.set_probability(0.99, (np.abs(c[..., 0]) < 0.15) & (c[..., 2] > 0.4) & (c[..., 2] < 0.5))
+    camera = CameraModel(math.radians(60), 480, 0.3, 1.2)
+    full = search(g, [TARGET], camera)
+    rnd = search(g, [TARGET], camera, settings=SearchSettings("random", samples=10**6),
+                 rng=np.random.default_rng(3))
+    assert rnd.evaluated == full.evaluated
+    assert np.allclose(full.ratings.positions[full.ranked()[0]],
+                       rnd.ratings.positions[rnd.ranked()[0]])
+    coarse = search(g, [TARGET], camera, settings=SearchSettings("coarse", coarse_step=2))
+    bounded = search(g, [TARGET], camera, settings=SearchSettings("bounded", max_distance=0.6))
+    assert 0 < coarse.evaluated < full.evaluated and 0 < bounded.evaluated < full.evaluated
+    assert np.all(np.linalg.norm(bounded.ratings.positions, axis=1) <= 0.6)
