@@ -31,6 +31,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     run.add_argument("--record-unknown", action="store_true",
                      help="record never-observed voxels too (world/grid/unknown)")
+    fig = sub.add_parser("figure7", help="the paper's Figure 7: RF over a planar world")
+    fig.add_argument("--out", type=Path, default=Path("runs/figure7"),
+                     help="directory for figure7_a.png, figure7_b.png, figure7.json")
     return parser
 
 
@@ -69,11 +72,27 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def figure7(args: argparse.Namespace) -> int:
+    from placement.figure7 import figure7 as study
+
+    if args.out.exists() and not args.out.is_dir():
+        raise ScenarioError("--out", "out", str(args.out), "a directory (this is a file)")
+    report = study(args.out)
+    (args.out / "figure7.json").write_text(json.dumps(report, indent=2) + "\n")
+    for instance in report["instances"]:
+        _log(f"instance {instance['instance']}: optimum {instance['optimum']} views the "
+             f"{instance['target']} target (RF {instance['rating']['total']:.2f})")
+    _log(f"wrote {args.out}/figure7.json and the heatmaps")
+    return EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "run":
             return run(args)
+        if args.command == "figure7":
+            return figure7(args)
     except ScenarioError as exc:
         print(f"taskcam: error: {exc}", file=sys.stderr)
         return EXIT_INVALID

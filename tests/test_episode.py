@@ -39,6 +39,9 @@ def test_every_robot_sees_its_target(default_run):
     _, summary = default_run
     for robot in summary["robots"]:
         assert robot["placed"] and robot["seen"], robot
+        assert robot["target"]["role"] == "primary"  # nothing hides it entirely here
+        assert robot["search"]["strategy"] == "exhaustive"
+        assert robot["search"]["candidates_evaluated"] >= robot["candidates_tried"] > 0
         assert robot["ik"]["position_error_m"] < 1e-3
         assert robot["ik"]["orientation_error_deg"] < 0.1
         terms = robot["rating"]
@@ -115,7 +118,8 @@ def test_recording_has_the_cameras_grid_and_ratings(default_run):
     out, _ = default_run
     paths = set(RrdReader(out / "run.rrd").store().schema().entity_paths())
     for path in ("/world/grid", "/world/targets", "/world/r1/camera", "/world/r1/camera/rgb",
-                 "/world/r1/camera/depth", "/world/r2/candidates", "/world/r2/chosen"):
+                 "/world/r1/camera/depth", "/world/r2/candidates", "/world/r2/chosen",
+                 "/world/r2/hulls", "/world/r1/views"):
         assert path in paths, sorted(paths)
 
 
