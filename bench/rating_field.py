@@ -32,7 +32,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import print_table, write_results
 
 import sim  # noqa: F401  (GL backend before mujoco)
+
+# isort: split
 import mujoco
+
 from mapping import OccupancyGrid, SensorModel
 from placement import CameraModel, SearchSettings, TargetModel, search
 from sim import build_scene, load_scenario

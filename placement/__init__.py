@@ -9,6 +9,7 @@ from .rating import (
     angular_visibility,
     depth_of_field,
     rate,
+    rate_best,
     resolution,
 )
 from .search import RatingField, Region, SearchSettings, candidates, search, target_points
@@ -35,6 +36,7 @@ __all__ = [
     "hull_depths",
     "line_of_sight",
     "rate",
+    "rate_best",
     "resolution",
     "search",
     "target_outline",

@@ -14,13 +14,14 @@ the space it surrounds. Other robots' bodies come as point sets, one hull each.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
-from mapping import OccupancyGrid
+from mapping import LOG_ODDS_SCALE, OccupancyGrid
 
 from .rating import TargetModel
 
@@ -71,16 +72,16 @@ def expand(points: np.ndarray, target: TargetModel, sides: int = 8) -> Hull | No
 
 def grid_occluders(grid: OccupancyGrid, target: TargetModel, occupied: float = 0.5,
                    unknown_occludes: bool = True, block: int = 4) -> list[np.ndarray]:
-    """Corner points (m) of each occluder piece: components of occupied (and unknown)
-    voxels above the target's plane, split into blocks of ``block`` voxels a side."""
-    p = grid.probability()
-    solid = p > occupied
+    """Points (m) whose hull is each occluder piece: components of occupied (and unknown)
+    voxels wholly above the target's plane, split into blocks of ``block`` voxels a side.
+    Each piece is given by the corners of the voxels whose centres span its hull."""
+    solid = grid.log_odds > round(float(np.log(occupied / (1 - occupied))) * LOG_ODDS_SCALE)
     if unknown_occludes:
         solid |= grid.log_odds == 0
     n = target.normal / np.linalg.norm(target.normal)
-    # whole voxels above the plane: the lowest corner of each is above it
-    lowest = (grid.centers() - target.position) @ n - 0.5 * grid.resolution * np.abs(n).sum()
-    solid &= lowest > 0.0
+    # whole voxels above the plane: the lowest corner of each is above it (separable sum)
+    height = _plane_height(grid, target.position, n)
+    solid &= height - 0.5 * grid.resolution * np.abs(n).sum() > 0.0
     labels, count = ndimage.label(solid, structure=np.ones((3, 3, 3), dtype=bool))
     if count == 0:
         return []
@@ -93,9 +94,22 @@ def grid_occluders(grid: OccupancyGrid, target: TargetModel, occupied: float = 0
     starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
     pieces = []
     for lo, hi in zip(starts, np.r_[starts[1:], len(keys)], strict=True):
-        corners = (idx[lo:hi, None, :] + CORNERS[None]).reshape(-1, 3)
-        pieces.append(grid.origin + np.unique(corners, axis=0) * grid.resolution)
+        centres = idx[lo:hi].astype(float)
+        # hull(voxels) = hull(centres) + cube: only the centres' hull vertices matter
+        # (a flat or tiny piece keeps every centre)
+        with contextlib.suppress(QhullError, ValueError):
+            centres = centres[ConvexHull(centres).vertices]
+        corners = (centres[:, None, :] + CORNERS[None]).reshape(-1, 3)
+        pieces.append(grid.origin + corners * grid.resolution)
     return pieces
+
+
+def _plane_height(grid: OccupancyGrid, point: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Signed height (m) of every voxel centre above the plane through ``point``."""
+    axes = [grid.origin[a] + (np.arange(grid.shape[a]) + 0.5) * grid.resolution - point[a]
+            for a in range(3)]
+    return (n[0] * axes[0][:, None, None] + n[1] * axes[1][None, :, None]
+            + n[2] * axes[2][None, None, :])
 
 
 def expanded_hulls(pieces: list[np.ndarray], target: TargetModel) -> list[Hull]:

@@ -6,8 +6,10 @@ at the target, as in the paper.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 
@@ -78,18 +80,66 @@ class Ratings:
                 "tav": float(self.tav[i]), "free": float(self.free[i])}
 
 
+@nb.njit(cache=True, inline="always")
+def _pow(x: float, e: float) -> float:
+    """x ** e, without calling pow for the common exponents 1 and 0 (0 ** 0 = 1)."""
+    if e == 1.0:
+        return x
+    if e == 0.0:
+        return 1.0
+    return x ** e
+
+
+@nb.njit(cache=True, parallel=True)
+def _rate(positions: np.ndarray, targets: np.ndarray, normals: np.ndarray, near: float,
+          far: float, per_pixel: float, st_errors: np.ndarray, tfv: np.ndarray,
+          occupancy: np.ndarray, w: np.ndarray, out: np.ndarray, which: np.ndarray) -> None:
+    """Per candidate, the target that rates it best (the first on ties) and, in the rows
+    of ``out``, that target's DOF, Res, TFV, TAV, 1 - P and RF (eq. 1-4)."""
+    for i in nb.prange(len(positions)):
+        free = 1.0 - occupancy[i]
+        best = -1.0
+        for t in range(len(targets)):
+            dx = positions[i, 0] - targets[t, 0]
+            dy = positions[i, 1] - targets[t, 1]
+            dz = positions[i, 2] - targets[t, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            dof = 1.0 if near <= d <= far else 0.0
+            res = 1.0 / (d * per_pixel + st_errors[t])
+            cos = (dx * normals[t, 0] + dy * normals[t, 1] + dz * normals[t, 2]) / max(d, 1e-12)
+            tav = min(max(cos, 0.0), 1.0)
+            total = (_pow(dof, w[0]) * _pow(res, w[1]) * _pow(tfv[t, i], w[2])
+                     * _pow(tav, w[3]) * free)
+            if total > best:
+                best = total
+                which[i] = t
+                out[0, i], out[1, i], out[2, i], out[3, i] = dof, res, tfv[t, i], tav
+        out[4, i], out[5, i] = free, best
+
+
+def rate_best(positions: np.ndarray, targets: Sequence[TargetModel], camera: CameraModel,
+              tfv: np.ndarray, occupancy: np.ndarray, weights: Weights = Weights()
+              ) -> tuple[Ratings, np.ndarray]:
+    """Rate camera positions (n, 3) for every target (``tfv``: (targets, n)) in one pass;
+    each keeps the target that rates it best (sec. 2.3.5). Returns the ratings and the
+    index of that target per position."""
+    positions = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, 3)
+    out = np.empty((6, len(positions)))
+    which = np.zeros(len(positions), dtype=np.int64)
+    normals = np.array([np.asarray(t.normal, float) / np.linalg.norm(t.normal)
+                        for t in targets])
+    _rate(positions, np.array([np.asarray(t.position, float) for t in targets]), normals,
+          camera.near, camera.far, 2.0 * np.tan(camera.fov / 2) / camera.pixels,
+          np.array([t.st_error for t in targets], dtype=float),
+          np.ascontiguousarray(np.reshape(tfv, (len(targets), len(positions))), dtype=float),
+          np.ascontiguousarray(occupancy, dtype=np.float64),
+          np.array([weights.alpha, weights.beta, weights.gamma, weights.delta]), out, which)
+    dof, res, tfv_, tav, free, total = out
+    return Ratings(positions, dof, res, tfv_, tav, free, total), which
+
+
 def rate(positions: np.ndarray, target: TargetModel, camera: CameraModel, tfv: np.ndarray,
          occupancy: np.ndarray, weights: Weights = Weights()) -> Ratings:
-    """Rate camera positions (n, 3) viewing ``target``.
-
-    ``tfv`` is each position's target field visibility in [0, 1] and ``occupancy`` the
-    probability P that its voxel is occupied.
-    """
-    distance = np.linalg.norm(positions - target.position, axis=1)
-    dof = depth_of_field(distance, camera)
-    res = resolution(distance, camera, target.st_error)
-    tav = angular_visibility(positions, target)
-    free = 1.0 - occupancy
-    total = (dof ** weights.alpha * res ** weights.beta * tfv ** weights.gamma
-             * tav ** weights.delta * free)
-    return Ratings(positions, dof, res, tfv, tav, free, total)
+    """Rate camera positions (n, 3) viewing ``target``. ``tfv`` is each position's target
+    field visibility in [0, 1] and ``occupancy`` the probability P of its voxel."""
+    return rate_best(positions, [target], camera, tfv, occupancy, weights)[0]

@@ -9,15 +9,15 @@ what it evaluated; each candidate keeps the target that rates it best (sec. 2.3.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
-from mapping import OccupancyGrid
+from mapping import LOG_ODDS_SCALE, OccupancyGrid
 
 from .occluders import Hull, expanded_hulls, grid_occluders
-from .rating import CameraModel, Ratings, TargetModel, Weights, rate
+from .rating import CameraModel, Ratings, TargetModel, Weights, rate_best
 from .tfv import clearance_map
 
 Strategy = Literal["exhaustive", "coarse", "bounded", "random"]
@@ -82,8 +82,8 @@ def candidates(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: Came
                free_threshold: float, region: Region) -> tuple[np.ndarray, np.ndarray]:
     """Centres (n, 3) of known-free voxels in the region and in some target's depth of field,
     and their occupancy probabilities."""
-    p = grid.probability()
-    idx = np.argwhere(p < free_threshold)
+    limit = np.log(free_threshold / (1 - free_threshold)) * LOG_ODDS_SCALE
+    idx = np.argwhere(grid.log_odds < limit)
     pos = grid.centers(idx)
     keep = (pos[:, 2] >= region.z_min) & (pos[:, 2] <= region.z_max)
     for centre, radius in region.keep_out:
@@ -96,8 +96,8 @@ def candidates(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: Came
         d = np.linalg.norm(pos - t.position, axis=1)
         in_field |= (d >= camera.near) & (d <= camera.far)
     keep &= in_field
-    idx = idx[keep]
-    return pos[keep], p[idx[:, 0], idx[:, 1], idx[:, 2]]
+    log_odds = grid.log_odds[tuple(idx[keep].T)] / LOG_ODDS_SCALE
+    return pos[keep], 1.0 / (1.0 + np.exp(-log_odds))
 
 
 def _select(grid: OccupancyGrid, positions: np.ndarray, targets: Sequence[TargetModel],
@@ -132,20 +132,19 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
     positions, occupancy = candidates(grid, targets, camera, free_threshold, region)
     keep = _select(grid, positions, targets, settings, rng)
     positions, occupancy = positions[keep], occupancy[keep]
-    rated, hulls = [], {}
-    for target in targets:
-        pieces = grid_occluders(grid, target, unknown_occludes=settings.unknown_occludes,
-                                block=settings.block)
-        hulls[target.name] = expanded_hulls([*pieces, *extra_occluders], target)
-        tfv = clearance_map(target.position, hulls[target.name], camera.near, camera.far,
-                            settings.levels, settings.directions
-                            ).tfv(positions - target.position)
-        rated.append(rate(positions, target, camera, tfv, occupancy, weights))
-    which = np.argmax(np.stack([r.total for r in rated]), axis=0)  # first best on ties
-    cols = np.arange(len(positions))
-
-    def pick(name: str) -> np.ndarray:
-        return np.stack([getattr(r, name) for r in rated])[which, cols]
-
-    terms = {f.name: pick(f.name) for f in fields(Ratings) if f.name != "positions"}
-    return RatingField(Ratings(positions=positions, **terms), which, settings.strategy, hulls)
+    hulls: dict[str, list[Hull]] = {}
+    tfv = np.empty((len(targets), len(positions)))
+    pieces_by_plane: dict[tuple[float, ...], list[np.ndarray]] = {}
+    for k, target in enumerate(targets):
+        n = target.normal / np.linalg.norm(target.normal)
+        plane = (*np.round(n, 9), round(float(n @ target.position), 9))
+        if plane not in pieces_by_plane:  # targets on one plate share their occluders
+            pieces_by_plane[plane] = grid_occluders(
+                grid, target, unknown_occludes=settings.unknown_occludes, block=settings.block)
+        hulls[target.name] = expanded_hulls([*pieces_by_plane[plane], *extra_occluders],
+                                            target)
+        tfv[k] = clearance_map(target.position, hulls[target.name], camera.near, camera.far,
+                               settings.levels, settings.directions
+                               ).tfv(positions - target.position)
+    ratings, which = rate_best(positions, targets, camera, tfv, occupancy, weights)
+    return RatingField(ratings, which, settings.strategy, hulls)

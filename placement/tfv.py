@@ -47,14 +47,22 @@ def sphere(directions: int) -> tuple[np.ndarray, np.ndarray]:
     return dirs, table.reshape(LOOKUP).astype(np.int32)
 
 
-def nearest_direction(u: np.ndarray, directions: int) -> np.ndarray:
-    """Index of the sphere direction nearest to each unit vector (n, 3) (to a table cell)."""
-    _, table = sphere(directions)
-    az = np.arctan2(u[:, 1], u[:, 0])
-    pol = np.arccos(np.clip(u[:, 2], -1.0, 1.0))
-    i = np.clip(((az + np.pi) / (2 * np.pi) * LOOKUP[0]).astype(np.int64), 0, LOOKUP[0] - 1)
-    j = np.clip((pol / np.pi * LOOKUP[1]).astype(np.int64), 0, LOOKUP[1] - 1)
-    return table[i, j]
+@nb.njit(cache=True, parallel=True)
+def _lookup(offsets: np.ndarray, levels: np.ndarray, clearance: np.ndarray,
+            table: np.ndarray) -> np.ndarray:
+    """Clearance / pi at each offset's distance level and nearest sphere direction."""
+    out = np.empty(len(offsets))
+    na, npol = table.shape
+    for i in nb.prange(len(offsets)):
+        x, y, z = offsets[i, 0], offsets[i, 1], offsets[i, 2]
+        d = np.sqrt(x * x + y * y + z * z)
+        k = min(np.searchsorted(levels, d), len(levels) - 1)
+        az = np.arctan2(y, x)
+        pol = np.arccos(min(max(z / max(d, 1e-12), -1.0), 1.0))
+        a = min(max(int((az + np.pi) / (2 * np.pi) * na), 0), na - 1)
+        p = min(max(int(pol / np.pi * npol), 0), npol - 1)
+        out[i] = clearance[k, table[a, p]] / np.pi
+    return out
 
 
 @nb.njit(cache=True, parallel=True)
@@ -107,16 +115,17 @@ class ClearanceMap:
 
     def tfv(self, offsets: np.ndarray) -> np.ndarray:
         """TFV in [0, 1] of cameras at ``offsets`` (n, 3) from the target."""
-        d = np.linalg.norm(offsets, axis=1)
-        u = offsets / np.maximum(d, 1e-12)[:, None]
-        k = np.minimum(np.searchsorted(self.levels, d), len(self.levels) - 1)
-        return self.clearance[k, nearest_direction(u, self.directions)] / np.pi
+        _, table = sphere(self.directions)
+        return _lookup(np.ascontiguousarray(offsets, dtype=np.float64).reshape(-1, 3),
+                       self.levels, self.clearance, table)
 
 
 def clearance_map(target: np.ndarray, hulls: list[Hull], near: float, far: float,
                   levels: int = 48, directions: int = 16384) -> ClearanceMap:
     """The angular clearance of every sphere direction at ``levels`` distances from
-    ``near`` to ``far`` (m)."""
+    ``near`` to ``far`` (m). Level by level, the directions newly occluded closer than
+    the level's distance go into a k-d tree, and every direction's clearance shrinks to
+    its angle to the nearest of them."""
     dirs, _ = sphere(directions)
     depth = hull_depths(target, hulls, dirs)
     ladder = np.linspace(near, far, levels)
@@ -126,7 +135,7 @@ def clearance_map(target: np.ndarray, hulls: list[Hull], near: float, far: float
     for k, d in enumerate(ladder):
         new = (depth < d) & ~added
         if new.any():
-            chord, _ = cKDTree(dirs[new]).query(dirs)
+            chord, _ = cKDTree(dirs[new]).query(dirs, workers=-1)
             current = np.minimum(current, 2 * np.arcsin(np.clip(chord / 2, 0, 1)))
             added |= new
         clearance[k] = current
