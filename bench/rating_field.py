@@ -1,7 +1,7 @@
 """The full rating field against brute-force visibility, on the default scene.
 
 Run from the repository root: ``python bench/rating_field.py``. The world is the default
-scene, known exactly: every geom is voxelised at 1.8 cm (P = 0.99 inside, 0.01 outside),
+scene, known exactly: every geom is voxelised at 2.1 cm (P = 0.99 inside, 0.01 outside),
 giving over a million candidate camera positions in the depth of field of the targets.
 
 - ours: ``placement.search`` (exhaustive, every term, TFV from expanded hulls on the
@@ -102,7 +102,7 @@ def brute_visible(model: mujoco.MjModel, data: mujoco.MjData, origin: np.ndarray
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--resolution", type=float, default=0.018)
+    parser.add_argument("--resolution", type=float, default=0.021)
     parser.add_argument("--subset", type=int, default=20000)
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
