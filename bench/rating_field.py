@@ -8,9 +8,9 @@ giving over a million candidate camera positions in the depth of field of the ta
   sphere) over all candidates and both targets, median of 3 runs;
 - brute force: rays from a candidate to 9 points all over each target (centre and rim)
   through MuJoCo's ``mj_multiRay`` against the true geometry; "fully visible" when no
-  ray meets anything; compared for the target the field chose. Run on a random subset of the candidates in front of the target
-  and in focus (elsewhere the rating is 0 whatever the visibility), and its time scaled
-  to all candidates.
+  ray meets anything; compared for the target the field chose. Run on a random subset
+  of the candidates in front of the target and in focus (elsewhere the rating is 0
+  whatever the visibility), and its time scaled to all candidates.
 
 Compared: time, agreement of "target fully visible" (ours: TFV > 0), the kinds of
 disagreement, and whether the optimum stays the optimum when visibility is decided by

@@ -200,7 +200,7 @@ class SearchConfig:
     camera_z_m: tuple[float, float] = (0.3, 1.6)  # heights the camera may be placed at
     # Cameras go within this horizontal distance of where the robot's base stands (its
     # arm's reach plus how far it may drive): IK does not plan around obstacles yet.
-    reach_m: float = _positive(2.0)
+    reach_m: float = _positive(1.5)
 
 
 @dataclass(frozen=True)
