@@ -64,9 +64,11 @@ def hull_of(points: np.ndarray) -> Hull | None:
                 points[h.simplices])
 
 
-def expand(points: np.ndarray, target: TargetModel, sides: int = 8) -> Hull | None:
+def expand(points: np.ndarray, target: TargetModel, sides: int = 8,
+           outline: np.ndarray | None = None) -> Hull | None:
     """The hull of ``points`` expanded by the target: hull(points + target outline)."""
-    outline = np.vstack([target_outline(target, sides), np.zeros((1, 3))])
+    if outline is None:
+        outline = target_outline(target, sides)
     return hull_of((points[:, None, :] + outline[None, :, :]).reshape(-1, 3))
 
 
@@ -115,8 +117,9 @@ def _plane_height(grid: OccupancyGrid, point: np.ndarray, n: np.ndarray) -> np.n
 def expanded_hulls(pieces: list[np.ndarray], target: TargetModel) -> list[Hull]:
     """Step (i) and (ii): each piece expanded by the target, then its convex hull."""
     hulls = []
+    outline = target_outline(target)
     for points in pieces:
-        h = expand(points, target)
+        h = expand(points, target, outline=outline)
         if h is not None:
             hulls.append(h)
     return hulls

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
+import numba as nb
 import numpy as np
 
 from mapping import LOG_ODDS_SCALE, OccupancyGrid
@@ -78,26 +79,60 @@ def target_points(target: TargetModel, rim: int = 4) -> np.ndarray:
     return target.position + 0.001 * n + np.vstack([np.zeros(3), ring])
 
 
+@nb.njit(cache=True)
+def _candidates(log_odds: np.ndarray, origin: np.ndarray, resolution: float, limit: float,
+                z_min: float, z_max: float, keep_out: np.ndarray, within: np.ndarray,
+                targets: np.ndarray, near: float, far: float) -> tuple[np.ndarray, np.ndarray]:
+    n0, n1, n2 = log_odds.shape
+    positions = np.empty((log_odds.size, 3))
+    occupancy = np.empty(log_odds.size)
+    count = 0
+    for i in range(n0):
+        x = origin[0] + (i + 0.5) * resolution
+        for j in range(n1):
+            y = origin[1] + (j + 0.5) * resolution
+            if within[2] >= 0 and (x - within[0]) ** 2 + (y - within[1]) ** 2 > within[2] ** 2:
+                continue
+            for k in range(n2):
+                value = log_odds[i, j, k]
+                if value >= limit:
+                    continue
+                z = origin[2] + (k + 0.5) * resolution
+                if z < z_min or z > z_max:
+                    continue
+                ok = True
+                for q in range(len(keep_out)):
+                    dx, dy, dz = x - keep_out[q, 0], y - keep_out[q, 1], z - keep_out[q, 2]
+                    if dx * dx + dy * dy + dz * dz < keep_out[q, 3] ** 2:
+                        ok = False
+                if not ok:
+                    continue
+                ok = False
+                for t in range(len(targets)):
+                    dx, dy, dz = x - targets[t, 0], y - targets[t, 1], z - targets[t, 2]
+                    d = np.sqrt(dx * dx + dy * dy + dz * dz)
+                    if near <= d <= far:
+                        ok = True
+                if not ok:
+                    continue
+                positions[count, 0], positions[count, 1], positions[count, 2] = x, y, z
+                occupancy[count] = 1.0 / (1.0 + np.exp(-value / LOG_ODDS_SCALE))
+                count += 1
+    return positions[:count].copy(), occupancy[:count].copy()
+
+
 def candidates(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraModel,
                free_threshold: float, region: Region) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (n, 3) of known-free voxels in the region and in some target's depth of field,
-    and their occupancy probabilities."""
-    limit = np.log(free_threshold / (1 - free_threshold)) * LOG_ODDS_SCALE
-    idx = np.argwhere(grid.log_odds < limit)
-    pos = grid.centers(idx)
-    keep = (pos[:, 2] >= region.z_min) & (pos[:, 2] <= region.z_max)
-    for centre, radius in region.keep_out:
-        keep &= np.linalg.norm(pos - np.asarray(centre), axis=1) >= radius
-    if region.within is not None:
-        (cx, cy), radius = region.within
-        keep &= np.hypot(pos[:, 0] - cx, pos[:, 1] - cy) <= radius
-    in_field = np.zeros(len(pos), dtype=bool)
-    for t in targets:
-        d = np.linalg.norm(pos - t.position, axis=1)
-        in_field |= (d >= camera.near) & (d <= camera.far)
-    keep &= in_field
-    log_odds = grid.log_odds[tuple(idx[keep].T)] / LOG_ODDS_SCALE
-    return pos[keep], 1.0 / (1.0 + np.exp(-log_odds))
+    """Centres (n, 3) of known-free voxels (P < ``free_threshold``) in the region and in
+    some target's depth of field, in grid order, and their occupancy probabilities."""
+    limit = float(np.log(free_threshold / (1 - free_threshold)) * LOG_ODDS_SCALE)
+    keep_out = np.array([[*c, r] for c, r in region.keep_out], dtype=float).reshape(-1, 4)
+    within = (np.array([*region.within[0], region.within[1]], dtype=float)
+              if region.within is not None else np.array([0.0, 0.0, -1.0]))
+    return _candidates(grid.log_odds, grid.origin, grid.resolution, limit, region.z_min,
+                       region.z_max, keep_out, within,
+                       np.array([t.position for t in targets], dtype=float), camera.near,
+                       camera.far)
 
 
 def _select(grid: OccupancyGrid, positions: np.ndarray, targets: Sequence[TargetModel],

@@ -11,7 +11,7 @@ Computed on a Fibonacci sphere of ``directions`` unit vectors: one ray per direc
 from the target gives the distance to the nearest hull (the projection of every hull
 onto the sphere, with its depth); for a ladder of ``levels`` distances the exact angle
 from every direction to the nearest direction occluded closer than that distance is
-found with a k-d tree, growing the occluded set level by level. A camera takes the
+found by a compiled search over the occluded directions, shallowest first. A camera takes the
 clearance of its nearest sphere direction at the first level at or beyond its distance
 (so a camera between levels is rated as if slightly farther: conservative).
 """
@@ -120,23 +120,38 @@ class ClearanceMap:
                        self.levels, self.clearance, table)
 
 
+@nb.njit(cache=True, parallel=True)
+def _clearance(dirs: np.ndarray, occluded: np.ndarray, first: np.ndarray, levels: int
+               ) -> np.ndarray:
+    """Per level and direction, the angle to the nearest occluded direction whose first
+    level is at or below it; ``occluded`` (m, 3) sorted by ``first``."""
+    out = np.empty((levels, len(dirs)))
+    for i in nb.prange(len(dirs)):
+        best = -1.0  # cosine of the nearest so far
+        j = 0
+        for k in range(levels):
+            while j < len(occluded) and first[j] <= k:
+                c = (dirs[i, 0] * occluded[j, 0] + dirs[i, 1] * occluded[j, 1]
+                     + dirs[i, 2] * occluded[j, 2])
+                if c > best:
+                    best = c
+                j += 1
+            # a direction that is itself occluded has clearance 0, not arccos(1 - eps)
+            out[k, i] = 0.0 if best > 1.0 - 1e-12 else np.arccos(max(best, -1.0))
+    return out
+
+
 def clearance_map(target: np.ndarray, hulls: list[Hull], near: float, far: float,
                   levels: int = 48, directions: int = 16384) -> ClearanceMap:
     """The angular clearance of every sphere direction at ``levels`` distances from
-    ``near`` to ``far`` (m). Level by level, the directions newly occluded closer than
-    the level's distance go into a k-d tree, and every direction's clearance shrinks to
-    its angle to the nearest of them."""
+    ``near`` to ``far`` (m): for every direction, the angle to the nearest direction
+    occluded closer than each level's distance (an exact search, compiled)."""
     dirs, _ = sphere(directions)
     depth = hull_depths(target, hulls, dirs)
     ladder = np.linspace(near, far, levels)
-    clearance = np.empty((levels, len(dirs)))
-    current = np.full(len(dirs), np.pi)
-    added = np.zeros(len(dirs), dtype=bool)
-    for k, d in enumerate(ladder):
-        new = (depth < d) & ~added
-        if new.any():
-            chord, _ = cKDTree(dirs[new]).query(dirs, workers=-1)
-            current = np.minimum(current, 2 * np.arcsin(np.clip(chord / 2, 0, 1)))
-            added |= new
-        clearance[k] = current
+    occluded = np.flatnonzero(depth < ladder[-1])
+    first = np.searchsorted(ladder, depth[occluded], side="right")  # depth < ladder[first]
+    order = np.argsort(first, kind="stable")
+    clearance = _clearance(dirs, np.ascontiguousarray(dirs[occluded[order]]), first[order],
+                           levels)
     return ClearanceMap(ladder, clearance, depth, directions)
