@@ -37,8 +37,8 @@ import sim  # noqa: F401  (GL backend before mujoco)
 # isort: split
 import mujoco
 
-from mapping import OccupancyGrid, SensorModel, first_hits
-from placement import CameraModel, SearchSettings, TargetModel, search
+from mapping import OccupancyGrid, SensorModel
+from placement import CameraModel, SearchSettings, TargetModel, line_of_sight, search
 from sim import build_scene, load_scenario
 from sim.scene import Target
 
@@ -105,20 +105,15 @@ def grid_visible(grid: OccupancyGrid, cameras: np.ndarray, points: list[np.ndarr
                  targets: list[TargetModel]) -> np.ndarray:
     """Brute force through the grid: is every ray from a camera to its target's points
     clear of the voxels the hulls are made of (occupied, wholly above the target plane)?"""
-    solid = grid.log_odds > 0
-    out = np.empty(len(cameras), dtype=bool)
     masks: dict[tuple[float, ...], np.ndarray] = {}
+    out = np.empty(len(cameras), dtype=bool)
     for i, (c, pts, t) in enumerate(zip(cameras, points, targets, strict=True)):
         key = (*t.normal, float(t.normal @ t.position))
         if key not in masks:
             lowest = (grid.centers() - t.position) @ t.normal - 0.5 * grid.resolution * \
                 np.abs(t.normal).sum()
-            masks[key] = (solid & (lowest > 0)).reshape(-1)
-        vec = pts - c
-        length = np.linalg.norm(vec, axis=1)
-        hit = first_hits(grid.shape, (c - grid.origin) / grid.resolution,
-                         vec / length[:, None], length / grid.resolution, masks[key])
-        out[i] = not hit.any()
+            masks[key] = (grid.log_odds > 0) & (lowest > 0)
+        out[i] = line_of_sight(grid, c[None], pts, blocked=masks[key]).all()
     return out
 
 

@@ -23,7 +23,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from mapping import LOG_ODDS_SCALE, OccupancyGrid
 
-from .rating import TargetModel
+from .rating import TargetModel, circle_in_plane
 
 CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
 
@@ -44,14 +44,7 @@ class Hull:
 def target_outline(target: TargetModel, sides: int = 8) -> np.ndarray:
     """Offsets (sides, 3) of a polygon in the target's plane that contains its disc (the
     polygon circumscribes the circle of the target's radius)."""
-    n = target.normal / np.linalg.norm(target.normal)
-    helper = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
-    u = np.cross(n, helper)
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
-    r = target.radius / np.cos(np.pi / sides)
-    return r * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+    return circle_in_plane(target.normal, target.radius / np.cos(np.pi / sides), sides)
 
 
 def hull_of(points: np.ndarray) -> Hull | None:

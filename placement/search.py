@@ -18,7 +18,7 @@ import numpy as np
 from mapping import LOG_ODDS_SCALE, OccupancyGrid
 
 from .occluders import Hull, expanded_hulls, grid_occluders
-from .rating import CameraModel, Ratings, TargetModel, Weights, rate_best
+from .rating import CameraModel, Ratings, TargetModel, Weights, circle_in_plane, rate_best
 from .tfv import clearance_map
 
 Strategy = Literal["exhaustive", "coarse", "bounded", "random"]
@@ -70,12 +70,7 @@ class RatingField:
 def target_points(target: TargetModel, rim: int = 4) -> np.ndarray:
     """The target's centre and ``rim`` points at 0.9 of its radius, 1 mm above its face."""
     n = target.normal / np.linalg.norm(target.normal)
-    helper = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
-    u = np.cross(n, helper)
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    a = np.linspace(0, 2 * np.pi, rim, endpoint=False)
-    ring = 0.9 * target.radius * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+    ring = circle_in_plane(n, 0.9 * target.radius, rim)
     return target.position + 0.001 * n + np.vstack([np.zeros(3), ring])
 
 

@@ -9,15 +9,17 @@ from mapping import OccupancyGrid, first_hits
 
 def line_of_sight(grid: OccupancyGrid, cameras: np.ndarray, points: np.ndarray,
                   occluding: float = 0.5, stop_short: float = 0.0,
-                  chunk: int = 65536) -> np.ndarray:
+                  chunk: int = 65536, blocked: np.ndarray | None = None) -> np.ndarray:
     """Boolean (n, k): is each of ``points`` (k, 3) seen from each camera (n, 3)?
 
     A line is blocked where it passes through a voxel with P >= ``occluding`` (unknown
-    voxels block at the default 0.5). The last ``stop_short`` metres before each point
-    are not checked (the voxels holding the point itself). A line that leaves the grid
-    is blocked: outside is unknown.
+    voxels block at the default 0.5), or, if given, where ``blocked`` (bool per voxel) is
+    True. The last ``stop_short`` metres before each point are not checked (the voxels
+    holding the point itself). A line that leaves the grid is blocked: outside is unknown.
     """
-    blocked = (grid.probability() >= occluding).reshape(-1)
+    if blocked is None:
+        blocked = grid.probability() >= occluding
+    blocked = np.ascontiguousarray(blocked).reshape(-1)
     cameras, points = np.atleast_2d(cameras), np.atleast_2d(points)
     starts = np.repeat(cameras, len(points), axis=0)
     ends = np.tile(points, (len(cameras), 1))

@@ -9,6 +9,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from placement import circle_in_plane
+
 from .scenario import Scenario, ScenarioError
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
@@ -47,13 +49,7 @@ class Target:
 
     def rim(self, count: int = 8, scale: float = 1.0) -> np.ndarray:
         """``count`` points on the rim circle (scaled by ``scale``), shape (count, 3)."""
-        helper = np.array([1.0, 0, 0]) if abs(self.normal[0]) < 0.9 else np.array([0, 1.0, 0])
-        u = np.cross(self.normal, helper)
-        u /= np.linalg.norm(u)
-        v = np.cross(self.normal, u)
-        angles = np.linspace(0, 2 * np.pi, count, endpoint=False)
-        ring = np.cos(angles)[:, None] * u + np.sin(angles)[:, None] * v
-        return self.position + scale * self.radius * ring
+        return self.position + circle_in_plane(self.normal, scale * self.radius, count)
 
     def summary(self) -> dict[str, object]:
         return {"name": self.name, "role": self.role, "position": self.position.tolist(),
