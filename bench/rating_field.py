@@ -38,7 +38,14 @@ import sim  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from mapping import OccupancyGrid, SensorModel
-from placement import CameraModel, SearchSettings, TargetModel, line_of_sight, search
+from placement import (
+    CameraModel,
+    SearchSettings,
+    TargetModel,
+    above_plane,
+    line_of_sight,
+    search,
+)
 from sim import build_scene, load_scenario
 from sim.scene import Target
 
@@ -110,9 +117,7 @@ def grid_visible(grid: OccupancyGrid, cameras: np.ndarray, points: list[np.ndarr
     for i, (c, pts, t) in enumerate(zip(cameras, points, targets, strict=True)):
         key = (*t.normal, float(t.normal @ t.position))
         if key not in masks:
-            lowest = (grid.centers() - t.position) @ t.normal - 0.5 * grid.resolution * \
-                np.abs(t.normal).sum()
-            masks[key] = (grid.log_odds > 0) & (lowest > 0)
+            masks[key] = (grid.log_odds > 0) & above_plane(grid, t)
         out[i] = line_of_sight(grid, c[None], pts, blocked=masks[key]).all()
     return out
 

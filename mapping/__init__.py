@@ -1,7 +1,7 @@
 """Occupancy mapping: voxel grid, sensor model, depth integration. Free of MuJoCo."""
 
 from .camera import MUJOCO_TO_OPENCV, Pinhole, camera_to_world, opencv_pose, world_to_camera
-from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit
+from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit, stored_log_odds
 from .integrate import integrate_depth
 from .raycast import first_hits, mark_free_image, traverse
 from .stereo import StereoSettings, stereo_depth
@@ -26,6 +26,7 @@ __all__ = [
     "opencv_pose",
     "region_mask",
     "stereo_depth",
+    "stored_log_odds",
     "traverse",
     "view_rays",
     "world_to_camera",

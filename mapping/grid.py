@@ -18,6 +18,11 @@ def logit(p: float | np.ndarray) -> np.ndarray:
     return np.log(np.asarray(p) / (1 - np.asarray(p)))
 
 
+def stored_log_odds(p: float | np.ndarray) -> np.ndarray:
+    """P(occupied) as stored: log-odds in thousandths of a nat, rounded."""
+    return np.round(logit(p) * LOG_ODDS_SCALE).astype(np.int16)
+
+
 @dataclass(frozen=True)
 class SensorModel:
     """P(occupied) after a hit / after a miss, and the clamping bounds (OctoMap's defaults)."""
@@ -35,7 +40,7 @@ class SensorModel:
 
     def stored(self) -> tuple[int, int, int, int]:
         """(hit, miss, min, max) in stored log-odds units."""
-        hit, miss, lo, hi = (round(float(logit(p)) * LOG_ODDS_SCALE)
+        hit, miss, lo, hi = (int(stored_log_odds(p))
                              for p in (self.hit, self.miss, self.clamp_min, self.clamp_max))
         return hit, miss, lo, hi
 
@@ -82,10 +87,6 @@ class OccupancyGrid:
         return cls(lo, resolution, (int(n[0]), int(n[1]), int(n[2])), model or SensorModel())
 
     @property
-    def upper(self) -> np.ndarray:
-        return self.origin + self.resolution * np.array(self.shape)
-
-    @property
     def size(self) -> int:
         return int(np.prod(self.shape))
 
@@ -99,10 +100,6 @@ class OccupancyGrid:
 
     def inside(self, idx: np.ndarray) -> np.ndarray:
         return np.all((idx >= 0) & (idx < np.array(self.shape)), axis=-1)
-
-    def flat(self, idx: np.ndarray) -> np.ndarray:
-        """Flat (C-order) indices of voxel indices (n, 3) inside the grid."""
-        return np.ravel_multi_index(tuple(np.asarray(idx).T), self.shape)
 
     def centers(self, idx: np.ndarray | None = None) -> np.ndarray:
         """Voxel centres (m) of indices (n, 3), or of every voxel (shape + (3,))."""
@@ -126,7 +123,7 @@ class OccupancyGrid:
 
     def set_probability(self, p: float | np.ndarray, where: np.ndarray | None = None) -> None:
         """Overwrite P(occupied) (everywhere, or where the boolean mask is True)."""
-        value = np.round(logit(np.asarray(p)) * LOG_ODDS_SCALE).astype(np.int16)
+        value = stored_log_odds(p)
         if where is None:
             self.log_odds[...] = value
         else:

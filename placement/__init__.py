@@ -1,6 +1,6 @@
 """Camera placement: the rating function (eq. 1-4), visibility and search. Free of MuJoCo."""
 
-from .occluders import Hull, expand, expanded_hulls, grid_occluders, target_outline
+from .occluders import Hull, above_plane, expand, expanded_hulls, grid_occluders, target_outline
 from .rating import (
     CameraModel,
     Ratings,
@@ -27,6 +27,7 @@ __all__ = [
     "SearchSettings",
     "TargetModel",
     "Weights",
+    "above_plane",
     "angular_visibility",
     "candidates",
     "circle_in_plane",

@@ -21,7 +21,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
-from mapping import LOG_ODDS_SCALE, OccupancyGrid
+from mapping import OccupancyGrid, stored_log_odds
 
 from .rating import TargetModel, circle_in_plane
 
@@ -70,13 +70,10 @@ def grid_occluders(grid: OccupancyGrid, target: TargetModel, occupied: float = 0
     """Points (m) whose hull is each occluder piece: components of occupied (and unknown)
     voxels wholly above the target's plane, split into blocks of ``block`` voxels a side.
     Each piece is given by the corners of the voxels whose centres span its hull."""
-    solid = grid.log_odds > round(float(np.log(occupied / (1 - occupied))) * LOG_ODDS_SCALE)
+    solid = grid.log_odds > stored_log_odds(occupied)
     if unknown_occludes:
         solid |= grid.log_odds == 0
-    n = target.normal / np.linalg.norm(target.normal)
-    # whole voxels above the plane: the lowest corner of each is above it (separable sum)
-    height = _plane_height(grid, target.position, n)
-    solid &= height - 0.5 * grid.resolution * np.abs(n).sum() > 0.0
+    solid &= above_plane(grid, target)
     labels, count = ndimage.label(solid, structure=np.ones((3, 3, 3), dtype=bool))
     if count == 0:
         return []
@@ -99,12 +96,14 @@ def grid_occluders(grid: OccupancyGrid, target: TargetModel, occupied: float = 0
     return pieces
 
 
-def _plane_height(grid: OccupancyGrid, point: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Signed height (m) of every voxel centre above the plane through ``point``."""
-    axes = [grid.origin[a] + (np.arange(grid.shape[a]) + 0.5) * grid.resolution - point[a]
-            for a in range(3)]
-    return (n[0] * axes[0][:, None, None] + n[1] * axes[1][None, :, None]
-            + n[2] * axes[2][None, None, :])
+def above_plane(grid: OccupancyGrid, target: TargetModel) -> np.ndarray:
+    """Bool per voxel: does it lie wholly above the target's plane (its lowest corner)?"""
+    n = target.normal / np.linalg.norm(target.normal)
+    axes = [grid.origin[a] + (np.arange(grid.shape[a]) + 0.5) * grid.resolution
+            - target.position[a] for a in range(3)]
+    height = (n[0] * axes[0][:, None, None] + n[1] * axes[1][None, :, None]
+              + n[2] * axes[2][None, None, :])
+    return height - 0.5 * grid.resolution * np.abs(n).sum() > 0.0
 
 
 def expanded_hulls(pieces: list[np.ndarray], target: TargetModel) -> list[Hull]:

@@ -15,7 +15,7 @@ from typing import Literal
 import numba as nb
 import numpy as np
 
-from mapping import LOG_ODDS_SCALE, OccupancyGrid
+from mapping import LOG_ODDS_SCALE, OccupancyGrid, stored_log_odds
 
 from .occluders import Hull, expanded_hulls, grid_occluders
 from .rating import CameraModel, Ratings, TargetModel, Weights, circle_in_plane, rate_best
@@ -120,7 +120,7 @@ def candidates(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: Came
                free_threshold: float, region: Region) -> tuple[np.ndarray, np.ndarray]:
     """Centres (n, 3) of known-free voxels (P < ``free_threshold``) in the region and in
     some target's depth of field, in grid order, and their occupancy probabilities."""
-    limit = float(np.log(free_threshold / (1 - free_threshold)) * LOG_ODDS_SCALE)
+    limit = float(stored_log_odds(free_threshold))
     keep_out = np.array([[*c, r] for c, r in region.keep_out], dtype=float).reshape(-1, 4)
     within = (np.array([*region.within[0], region.within[1]], dtype=float)
               if region.within is not None else np.array([0.0, 0.0, -1.0]))

@@ -51,7 +51,6 @@ class Candidate:
     robot: Robot
     qpos: np.ndarray  # full configuration with the robot at the candidate
     view: View
-    look_at: np.ndarray
     motion_m: float  # camera displacement from where it is now
 
 
@@ -181,7 +180,7 @@ class Exploration:
             to_others, to_self = clearance(scene.model, data, robot)
             if to_others >= self.s.search.clearance_m and to_self > 0:
                 T = opencv_pose(camera_pose(data, robot.camera))
-                out.append(Candidate(robot, ik.qpos, View(T), look_at,
+                out.append(Candidate(robot, ik.qpos, View(T),
                                      float(np.linalg.norm(T[:3, 3] - camera_now))))
         scene.set_robot(data, robot, here)
         return out
