@@ -1,12 +1,13 @@
 """The full rating field against brute-force visibility, on the default scene.
 
 Run from the repository root: ``python bench/rating_field.py``. The world is the default
-scene, known exactly: every geom is voxelised at 2.1 cm (P = 0.99 inside, 0.01 outside),
+scene, known exactly: every geom is voxelised at 2.1 cm (P = 0.99 touching, 0.01 not),
 giving over a million candidate camera positions in the depth of field of the targets.
 
-- ours: ``placement.search`` (exhaustive, every term, TFV from expanded hulls on the
-  sphere) over all candidates and both targets, median of 3 runs;
-- brute force: rays from a candidate to 9 points all over each target (centre and rim)
+- ours: ``placement.search`` (exhaustive, every term, TFV from cone-expanded hulls on
+  the sphere) over all candidates and both targets, median of 3 runs; the paper's
+  uniform expansion is also rated, for its agreement;
+- brute force: rays from a candidate to 25 points all over each target (centre, rings)
   through MuJoCo's ``mj_multiRay`` against the true geometry; "fully visible" when no
   ray meets anything; compared for the target the field chose. Run on a random subset
   of the candidates in front of the target and in focus (elsewhere the rating is 0
@@ -25,6 +26,7 @@ import math
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -53,13 +55,16 @@ LO, HI = np.array([-1.6, -1.6, 0.0]), np.array([1.6, 1.6, 1.8])
 
 
 def voxelise(model: mujoco.MjModel, data: mujoco.MjData, resolution: float) -> OccupancyGrid:
-    """The scene's geoms (but the floor) as a known grid: occupied where a voxel's centre
-    lies inside a geom."""
+    """The scene's geoms (but the floor) as a known grid, as a sensor would map them:
+    occupied (P = 0.99) where a voxel touches a geom — its cube meets the geom grown by
+    the cube's half extent along the geom's axes (a box: exact on the box's own axes;
+    rounded shapes: grown by half the cube's diagonal) — and free (0.01) elsewhere."""
     grid = OccupancyGrid.from_bounds(LO, HI, resolution, SensorModel())
     solid = np.zeros(grid.shape, dtype=bool)
     G = mujoco.mjtGeom
     BOX, CYLINDER, SPHERE, CAPSULE = (int(k) for k in (G.mjGEOM_BOX, G.mjGEOM_CYLINDER,
                                                        G.mjGEOM_SPHERE, G.mjGEOM_CAPSULE))
+    half = 0.5 * resolution
     for g in range(model.ngeom):
         kind = int(model.geom_type[g])
         if kind not in (BOX, CYLINDER, SPHERE, CAPSULE):
@@ -67,7 +72,7 @@ def voxelise(model: mujoco.MjModel, data: mujoco.MjData, resolution: float) -> O
         size, pos = model.geom_size[g], data.geom_xpos[g]
         R = data.geom_xmat[g].reshape(3, 3)
         reach = np.abs(R) @ (size if kind == BOX else
-                             np.array([size[0], size[0], size[1] + size[0]]))
+                             np.array([size[0], size[0], size[1] + size[0]])) + half
         lo = np.maximum(grid.index((pos - reach)[None])[0], 0)
         hi = np.minimum(grid.index((pos + reach)[None])[0] + 1, grid.shape)
         if np.any(hi <= lo):
@@ -75,16 +80,19 @@ def voxelise(model: mujoco.MjModel, data: mujoco.MjData, resolution: float) -> O
         idx = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi, strict=True)],
                                    indexing="ij"), -1).reshape(-1, 3)
         local = (grid.centers(idx) - pos) @ R
+        grow = half * np.abs(R).sum(axis=0)  # the cube's half extent along each geom axis
+        ball = half * math.sqrt(3)
         if kind == BOX:
-            inside = np.all(np.abs(local) <= size, axis=1)
+            inside = np.all(np.abs(local) <= size + grow, axis=1)
         elif kind == SPHERE:
-            inside = np.linalg.norm(local, axis=1) <= size[0]
+            inside = np.linalg.norm(local, axis=1) <= size[0] + ball
         elif kind == CYLINDER:
-            inside = (np.hypot(local[:, 0], local[:, 1]) <= size[0]) & \
-                (np.abs(local[:, 2]) <= size[1])
+            inside = (np.hypot(local[:, 0], local[:, 1]) <= size[0] + ball) & \
+                (np.abs(local[:, 2]) <= size[1] + grow[2])
         else:
             z = np.clip(local[:, 2], -size[1], size[1])
-            inside = np.linalg.norm(local - np.column_stack([0 * z, 0 * z, z]), axis=1) <= size[0]
+            inside = np.linalg.norm(local - np.column_stack([0 * z, 0 * z, z]), axis=1) \
+                <= size[0] + ball
         solid[tuple(idx[inside].T)] = True
     grid.set_probability(0.01)
     grid.set_probability(0.99, solid)
@@ -92,8 +100,10 @@ def voxelise(model: mujoco.MjModel, data: mujoco.MjData, resolution: float) -> O
 
 
 def target_points(t: Target) -> np.ndarray:
-    ring = t.rim(8, scale=0.95)
-    return np.vstack([t.position, ring]) + 0.001 * t.normal
+    """25 points all over the target disc: its centre, 8 at half its radius, 16 at its rim
+    (95 %), lifted 1 mm off the plate."""
+    return np.vstack([t.position, t.rim(8, scale=0.5), t.rim(16, scale=0.95)]) \
+        + 0.001 * t.normal
 
 
 def brute_visible(model: mujoco.MjModel, data: mujoco.MjData, origin: np.ndarray,
@@ -168,6 +178,11 @@ def main() -> None:
                                 [targets[field.target[i]] for i in subset])
     agree_grid = float(np.mean(ours == through_grid))
     grid_conservative = int(np.sum(~ours & through_grid))
+    grid_missed = int(np.sum(ours & ~through_grid))
+    # the paper's uniform expansion by the whole target, on the same candidates
+    paper = search(grid, targets, camera, settings=replace(settings, cone=False))
+    paper_ours = paper.ratings.tfv[subset] > 0
+    paper_agree = float(np.mean(paper_ours == through_grid))
     hull_conservative = int(np.sum(~ours & brute))  # hulls say hidden, rays see it
     missed = int(np.sum(ours & ~brute))  # hulls say visible, a ray is blocked
 
@@ -187,6 +202,11 @@ def main() -> None:
          "unit": f"fraction of {len(subset)} random candidates in front"},
         {"case": "  of the disagreements, hull conservatism", "ours": grid_conservative,
          "peer": None, "ratio": None, "unit": "candidates (ours hidden, rays clear)"},
+        {"case": "  of the disagreements, ours visible, a ray blocked", "ours": grid_missed,
+         "peer": None, "ratio": None, "unit": "candidates"},
+        {"case": "  same, the paper's uniform expansion", "ours": paper_agree,
+         "peer": None, "ratio": None,
+         "unit": f"fraction; {int(np.sum(~paper_ours & through_grid))} hidden, rays clear"},
         {"case": "agreement on 'fully visible', rays in MuJoCo", "ours": agree, "peer": None,
          "ratio": None, "unit": f"fraction of {len(subset)} random candidates in front"},
         {"case": "  of the disagreements, hull conservatism", "ours": hull_conservative,

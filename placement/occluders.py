@@ -2,7 +2,10 @@
 
 The paper's first two steps (sec. 2.3.3): the finite target is reduced to a point while
 each occluder is expanded by the target's extent (the Minkowski sum of occluder and
-target), and each expanded occluder is replaced by its convex hull.
+target), and each expanded occluder is replaced by its convex hull. Each hull also keeps,
+per face, how far the target's outline pushed that face out (``reach``): the hull of the
+occluder expanded by a fraction s of the target is then ``A x <= b - (1 - s) reach``
+exactly, which the sphere step uses for the exact (cone) expansion.
 
 Occluders come from the grid as connected components (26-neighbourhood) of occupied
 voxels (and, by default, never-observed ones) lying wholly above the target's plane
@@ -30,15 +33,36 @@ CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], 
 
 @dataclass(frozen=True)
 class Hull:
-    """A convex polytope: ``A x <= b`` (outward unit normals), with its vertices (m)."""
+    """A convex polytope ``A x <= b`` (outward unit normals): the hull of occluder points
+    expanded by a target outline. Each vertex is an occluder point (``core``) plus an
+    outline point (``spread``); ``reach`` is how far the outline pushed each face out
+    (m), so the same occluder expanded by a scaled outline is exact in closed form."""
 
     A: np.ndarray  # (f, 3)
     b: np.ndarray  # (f,)
-    vertices: np.ndarray  # (v, 3)
-    triangles: np.ndarray  # (t, 3, 3) the hull's surface, for drawing
+    reach: np.ndarray  # (f,) support of the outline along each face normal (m)
+    core: np.ndarray  # (v, 3) occluder point of each vertex (m)
+    spread: np.ndarray  # (v, 3) outline offset of each vertex (m)
+    faces: np.ndarray  # (t, 3) vertex indices of the surface triangles
+
+    @property
+    def vertices(self) -> np.ndarray:
+        return self.core + self.spread
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """(t, 3, 3) the hull's surface, for drawing."""
+        return self.vertices[self.faces]
 
     def contains(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
         return np.all(np.atleast_2d(points) @ self.A.T <= self.b + tol, axis=1)
+
+    def grown(self, factor: float) -> Hull:
+        """The same occluder expanded by the outline scaled by ``factor`` > 0: the faces
+        keep their normals (a Minkowski sum's normal fan does not change with a positive
+        scale), so only their offsets and the outline parts of the vertices move."""
+        return Hull(self.A, self.b + (factor - 1.0) * self.reach, factor * self.reach,
+                    self.core, factor * self.spread, self.faces)
 
 
 def target_outline(target: TargetModel, sides: int = 8) -> np.ndarray:
@@ -47,22 +71,27 @@ def target_outline(target: TargetModel, sides: int = 8) -> np.ndarray:
     return circle_in_plane(target.normal, target.radius / np.cos(np.pi / sides), sides)
 
 
-def hull_of(points: np.ndarray) -> Hull | None:
-    """Convex hull of a point set; None if it is flat or too small to hull."""
+def hull_of(points: np.ndarray, outline: np.ndarray | None = None) -> Hull | None:
+    """Convex hull of ``points`` expanded by ``outline`` offsets (n, 3), if given; None if
+    it is flat or too small to hull."""
+    if outline is None:
+        outline = np.zeros((1, 3))
+    summed = (points[:, None] + outline[None]).reshape(-1, 3)
     try:
-        h = ConvexHull(points)
+        h = ConvexHull(summed)
     except (QhullError, ValueError):
         return None
-    return Hull(h.equations[:, :3], -h.equations[:, 3], points[h.vertices],
-                points[h.simplices])
+    A = h.equations[:, :3]
+    ids = np.unique(h.simplices)
+    faces = np.searchsorted(ids, h.simplices)
+    return Hull(A, -h.equations[:, 3], (A @ outline.T).max(axis=1),
+                points[ids // len(outline)], outline[ids % len(outline)], faces)
 
 
 def expand(points: np.ndarray, target: TargetModel, sides: int = 8,
            outline: np.ndarray | None = None) -> Hull | None:
     """The hull of ``points`` expanded by the target: hull(points + target outline)."""
-    if outline is None:
-        outline = target_outline(target, sides)
-    return hull_of((points[:, None, :] + outline[None, :, :]).reshape(-1, 3))
+    return hull_of(points, target_outline(target, sides) if outline is None else outline)
 
 
 def grid_occluders(grid: OccupancyGrid, target: TargetModel, occupied: float = 0.5,

@@ -45,6 +45,7 @@ class SearchSettings:
     block: int = 4  # voxels a side of the pieces an occluder is hulled in
     directions: int = 16384  # of the sphere TFV is computed on
     levels: int = 48  # distances TFV is computed at, over the depth of field
+    cone: bool = True  # exact cone expansion of occluders; False: the paper's uniform one
 
 
 @dataclass(frozen=True)
@@ -164,17 +165,20 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
     positions, occupancy = positions[keep], occupancy[keep]
     hulls: dict[str, list[Hull]] = {}
     tfv = np.empty((len(targets), len(positions)))
-    pieces_by_plane: dict[tuple[float, ...], list[np.ndarray]] = {}
+    hulls_by_plane: dict[tuple[float, ...], tuple[float, list[Hull]]] = {}
     for k, target in enumerate(targets):
         n = target.normal / np.linalg.norm(target.normal)
         plane = (*np.round(n, 9), round(float(n @ target.position), 9))
-        if plane not in pieces_by_plane:  # targets on one plate share their occluders
-            pieces_by_plane[plane] = grid_occluders(
-                grid, target, unknown_occludes=settings.unknown_occludes, block=settings.block)
-        hulls[target.name] = expanded_hulls([*pieces_by_plane[plane], *extra_occluders],
-                                            target)
+        if plane not in hulls_by_plane:  # targets on one plate share their occluders
+            pieces = grid_occluders(grid, target, unknown_occludes=settings.unknown_occludes,
+                                    block=settings.block)
+            hulls_by_plane[plane] = (target.radius,
+                                     expanded_hulls([*pieces, *extra_occluders], target))
+        radius, first = hulls_by_plane[plane]  # and their expanded hulls, scaled
+        hulls[target.name] = (first if target.radius == radius else
+                              [h.grown(target.radius / radius) for h in first])
         tfv[k] = clearance_map(target.position, hulls[target.name], camera.near, camera.far,
-                               settings.levels, settings.directions
+                               settings.levels, settings.directions, settings.cone
                                ).tfv(positions - target.position)
     ratings, which = rate_best(positions, targets, camera, tfv, occupancy, weights)
     return RatingField(ratings, which, settings.strategy, hulls)

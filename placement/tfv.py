@@ -7,13 +7,23 @@ which an expanded hull lies closer than d — the angle through which the camera
 move on that sphere before the target is occluded. TFV is 0 when the target is occluded
 now and 1 when nothing occludes it at that distance.
 
+"Occluded from distance d in direction u": some expanded hull meets the sight line from
+the target to the camera t + d u. The paper expands each occluder by the whole target
+(exact for a camera at infinity, conservative near the camera). By default the expansion
+is exact for the finite camera: the rays from a camera to every point of the target
+disc fill a cone, and a sight-line point a fraction s of the way from the camera needs
+the occluder expanded by the target scaled by s — so a hull's faces move in linearly
+from the target (whole target) to the camera (none). ``cone=False`` gives the paper's.
+
 Computed on a Fibonacci sphere of ``directions`` unit vectors: one ray per direction
 from the target gives the distance to the nearest hull (the projection of every hull
 onto the sphere, with its depth); for a ladder of ``levels`` distances the exact angle
 from every direction to the nearest direction occluded closer than that distance is
 found by a compiled search over the occluded directions, shallowest first. A camera takes the
 clearance of its nearest sphere direction at the first level at or beyond its distance
-(so a camera between levels is rated as if slightly farther: conservative).
+(so a camera between levels is rated as if slightly farther: conservative). Whether a
+camera close to an occluded direction is occluded now is decided exactly, by its own
+sight line against the hulls, so that TFV > 0 means "every hull clears the cone".
 """
 
 from __future__ import annotations
@@ -65,59 +75,196 @@ def _lookup(offsets: np.ndarray, levels: np.ndarray, clearance: np.ndarray,
     return out
 
 
+@nb.njit(cache=True)
+def _cone_feasible(origin: np.ndarray, d: np.ndarray, dist: float, A: np.ndarray,
+                   b: np.ndarray, reach: np.ndarray, lo_f: int, hi_f: int) -> bool:
+    """Does the hull, expanded at each point of the sight line by the part of the target
+    the cone from a camera ``dist`` away along ``d`` needs there, meet that line? A point
+    a fraction t of the way to the camera needs the target scaled by 1 - t: it must satisfy
+    A x <= b - t reach, i.e. t (dist A.d + reach) <= b - A.origin, for some t in [0, 1]."""
+    lo, hi = 0.0, 1.0
+    for f in range(lo_f, hi_f):
+        rate = dist * (A[f, 0] * d[0] + A[f, 1] * d[1] + A[f, 2] * d[2]) + reach[f]
+        room = b[f] - (A[f, 0] * origin[0] + A[f, 1] * origin[1] + A[f, 2] * origin[2])
+        if rate > 1e-12:
+            hi = min(hi, room / rate)
+        elif rate < -1e-12:
+            lo = max(lo, room / rate)
+        elif room < 0.0:
+            return False
+        if lo > hi:
+            return False
+    return True
+
+
+@nb.njit(cache=True)
+def _misses(origin: np.ndarray, d: np.ndarray, dist: float, centre: np.ndarray,
+            radius: float) -> bool:
+    """Does the segment from ``origin`` along unit ``d`` for ``dist`` miss the sphere?"""
+    x, y, z = centre[0] - origin[0], centre[1] - origin[1], centre[2] - origin[2]
+    s = min(max(x * d[0] + y * d[1] + z * d[2], 0.0), dist)
+    x, y, z = x - s * d[0], y - s * d[1], z - s * d[2]
+    return x * x + y * y + z * z > radius * radius
+
+
+@nb.njit(cache=True)
+def _entry(origin: np.ndarray, d: np.ndarray, A: np.ndarray, b: np.ndarray, lo_f: int,
+           hi_f: int, best: float) -> float:
+    """Distance along the ray from ``origin`` along ``d`` at which it enters the hull
+    (rows lo_f:hi_f of A x <= b): 0 if it starts inside, inf if it misses it or enters
+    at or beyond ``best``."""
+    enter, leave = 0.0, np.inf
+    for f in range(lo_f, hi_f):
+        rate = A[f, 0] * d[0] + A[f, 1] * d[1] + A[f, 2] * d[2]
+        room = b[f] - (A[f, 0] * origin[0] + A[f, 1] * origin[1] + A[f, 2] * origin[2])
+        if rate > 1e-12:
+            leave = min(leave, room / rate)
+        elif rate < -1e-12:
+            enter = max(enter, room / rate)
+        elif room < 0.0:
+            return np.inf  # parallel to a face, outside it
+        if enter > leave or enter >= best:
+            return np.inf
+    return enter
+
+
+@nb.njit(cache=True)
+def _hull_depth(origin: np.ndarray, d: np.ndarray, A: np.ndarray, b: np.ndarray,
+                reach: np.ndarray, lo_f: int, hi_f: int, cone: bool, top: float) -> float:
+    """The smallest camera distance, at most ``top``, from which the hull occludes the ray
+    (inf if none). Without ``cone``, where the ray enters the fully expanded hull; with
+    it, the exact distance for the cone expansion, by bisection above that entry (the
+    occluded distances along a ray reach to infinity: a farther camera's cone contains a
+    nearer one's)."""
+    enter = _entry(origin, d, A, b, lo_f, hi_f, np.inf)
+    if enter > top:
+        return np.inf
+    if not cone:
+        return enter
+    if not _cone_feasible(origin, d, top, A, b, reach, lo_f, hi_f):
+        return np.inf
+    if _cone_feasible(origin, d, enter, A, b, reach, lo_f, hi_f):
+        return enter
+    low = enter
+    while top - low > 1e-7:
+        mid = 0.5 * (low + top)
+        if _cone_feasible(origin, d, mid, A, b, reach, lo_f, hi_f):
+            top = mid
+        else:
+            low = mid
+    return top
+
+
 @nb.njit(cache=True, parallel=True)
 def _ray_hull_depth(origin: np.ndarray, dirs: np.ndarray, A: np.ndarray, b: np.ndarray,
-                    start: np.ndarray) -> np.ndarray:
-    """Distance along each ray from ``origin`` to the first hull it enters (0 if it starts
-    inside one; inf if none). Hull h is rows start[h]:start[h + 1] of A x <= b."""
+                    reach: np.ndarray, start: np.ndarray, centre: np.ndarray,
+                    radius: np.ndarray, cone: bool, limit: float) -> np.ndarray:
+    """Per ray from ``origin``, the smallest camera distance at which any hull occludes it
+    (0 if the origin is inside one; inf if none within ``limit``). Hull h is rows
+    start[h]:start[h + 1] of A x <= b, inside the sphere ``centre[h]``, ``radius[h]``."""
     out = np.full(len(dirs), np.inf)
     for r in nb.prange(len(dirs)):
-        d = dirs[r]
         best = np.inf
         for h in range(len(start) - 1):
-            enter, leave = 0.0, np.inf
-            for f in range(start[h], start[h + 1]):
-                rate = A[f, 0] * d[0] + A[f, 1] * d[1] + A[f, 2] * d[2]
-                room = b[f] - (A[f, 0] * origin[0] + A[f, 1] * origin[1] + A[f, 2] * origin[2])
-                if rate > 1e-12:
-                    leave = min(leave, room / rate)
-                elif rate < -1e-12:
-                    enter = max(enter, room / rate)
-                elif room < 0.0:
-                    leave = -1.0  # parallel to a face, outside it
-                if enter > leave or enter >= best:
-                    break
-            if enter <= leave and enter < best:
-                best = enter
+            if _misses(origin, dirs[r], min(best, limit), centre[h], radius[h]):
+                continue
+            best = min(best, _hull_depth(origin, dirs[r], A, b, reach, start[h], start[h + 1],
+                                         cone, min(best, limit)))
         out[r] = best
     return out
 
 
-def hull_depths(target: np.ndarray, hulls: list[Hull], dirs: np.ndarray) -> np.ndarray:
-    """Steps (iii): the hulls projected on the sphere around the target, as the distance
-    (m) at which each direction first meets one."""
-    if not hulls:
-        return np.full(len(dirs), np.inf)
-    A = np.vstack([h.A for h in hulls])
-    b = np.concatenate([h.b for h in hulls])
-    start = np.cumsum([0] + [len(h.b) for h in hulls]).astype(np.int64)
-    return _ray_hull_depth(np.asarray(target, float), dirs, A, b, start)
+@nb.njit(cache=True, parallel=True)
+def _occluded(origin: np.ndarray, offsets: np.ndarray, A: np.ndarray, b: np.ndarray,
+              reach: np.ndarray, start: np.ndarray, centre: np.ndarray, radius: np.ndarray,
+              cone: bool) -> np.ndarray:
+    """Per camera at ``offsets`` from ``origin``: does any hull occlude it, exactly?"""
+    out = np.zeros(len(offsets), dtype=np.bool_)
+    for i in nb.prange(len(offsets)):
+        dist = np.sqrt(offsets[i, 0] ** 2 + offsets[i, 1] ** 2 + offsets[i, 2] ** 2)
+        d = offsets[i] / dist
+        for h in range(len(start) - 1):
+            if _misses(origin, d, dist, centre[h], radius[h]):
+                continue
+            if _entry(origin, d, A, b, start[h], start[h + 1], dist) < dist and (
+                    not cone or _cone_feasible(origin, d, dist, A, b, reach, start[h],
+                                               start[h + 1])):
+                out[i] = True
+                break
+    return out
+
+
+@dataclass(frozen=True)
+class PackedHulls:
+    """Hulls as one face table for the compiled kernels: hull h is rows
+    start[h]:start[h + 1] of A x <= b, with the target outline's reach per face, inside
+    the bounding sphere centre[h], radius[h] (m)."""
+
+    A: np.ndarray
+    b: np.ndarray
+    reach: np.ndarray
+    start: np.ndarray
+    centre: np.ndarray
+    radius: np.ndarray
+
+    @staticmethod
+    def of(hulls: list[Hull]) -> PackedHulls:
+        centre = np.array([h.vertices.mean(axis=0) for h in hulls]).reshape(-1, 3)
+        radius = np.array([np.linalg.norm(h.vertices - c, axis=1).max() + 1e-9
+                           for h, c in zip(hulls, centre, strict=True)])
+        return PackedHulls(np.vstack([h.A for h in hulls] or [np.zeros((0, 3))]),
+                           np.concatenate([h.b for h in hulls] or [np.zeros(0)]),
+                           np.concatenate([h.reach for h in hulls] or [np.zeros(0)]),
+                           np.cumsum([0] + [len(h.b) for h in hulls]).astype(np.int64),
+                           centre, radius)
+
+    def depths(self, origin: np.ndarray, dirs: np.ndarray, cone: bool, limit: float
+               ) -> np.ndarray:
+        """See :func:`hull_depths`."""
+        return _ray_hull_depth(origin, dirs, self.A, self.b, self.reach, self.start,
+                               self.centre, self.radius, cone, limit)
+
+    def occluded(self, origin: np.ndarray, offsets: np.ndarray, cone: bool) -> np.ndarray:
+        """Per camera at ``offsets`` (n, 3) from ``origin``: is it occluded, exactly?"""
+        return _occluded(origin, offsets, self.A, self.b, self.reach, self.start,
+                         self.centre, self.radius, cone)
+
+
+def hull_depths(target: np.ndarray, hulls: list[Hull], dirs: np.ndarray, cone: bool = True,
+                limit: float = 10.0) -> np.ndarray:
+    """Step (iii): the hulls projected on the sphere around the target, as the camera
+    distance (m) from which each direction is occluded. ``cone``: the exact expansion
+    (the target scaled down toward the camera along the sight line), searched up to
+    ``limit`` (m; beyond it, inf); otherwise the paper's uniform expansion by the whole
+    target (conservative near the camera)."""
+    return PackedHulls.of(hulls).depths(np.asarray(target, float), dirs, cone, float(limit))
 
 
 @dataclass(frozen=True)
 class ClearanceMap:
-    """Angular clearance (rad) per distance level and sphere direction."""
+    """Angular clearance (rad) per distance level and sphere direction, and the hulls it
+    came from (for the exact check near the occlusion boundary)."""
 
     levels: np.ndarray  # distances (m), increasing
     clearance: np.ndarray  # (levels, directions)
-    depth: np.ndarray  # (directions,) distance to the nearest hull
+    depth: np.ndarray  # (directions,) camera distance from which each is occluded
     directions: int
+    target: np.ndarray  # (3,) the reduced target (m)
+    hulls: PackedHulls
+    cone: bool
 
     def tfv(self, offsets: np.ndarray) -> np.ndarray:
-        """TFV in [0, 1] of cameras at ``offsets`` (n, 3) from the target."""
+        """TFV in [0, 1] of cameras at ``offsets`` (n, 3) from the target. A camera within
+        two direction spacings of an occluded direction is checked exactly against the
+        hulls at its own direction and distance (so the sphere's sampling never makes an
+        occluded camera look visible)."""
         _, table = sphere(self.directions)
-        return _lookup(np.ascontiguousarray(offsets, dtype=np.float64).reshape(-1, 3),
-                       self.levels, self.clearance, table)
+        offsets = np.ascontiguousarray(offsets, dtype=np.float64).reshape(-1, 3)
+        tfv = _lookup(offsets, self.levels, self.clearance, table)
+        margin = 2.0 * np.sqrt(4 * np.pi / self.directions) / np.pi  # in TFV units
+        near = np.flatnonzero((tfv > 0) & (tfv < margin))
+        tfv[near[self.hulls.occluded(self.target, offsets[near], self.cone)]] = 0.0
+        return tfv
 
 
 @nb.njit(cache=True, parallel=True)
@@ -142,16 +289,20 @@ def _clearance(dirs: np.ndarray, occluded: np.ndarray, first: np.ndarray, levels
 
 
 def clearance_map(target: np.ndarray, hulls: list[Hull], near: float, far: float,
-                  levels: int = 48, directions: int = 16384) -> ClearanceMap:
+                  levels: int = 48, directions: int = 16384, cone: bool = True
+                  ) -> ClearanceMap:
     """The angular clearance of every sphere direction at ``levels`` distances from
     ``near`` to ``far`` (m): for every direction, the angle to the nearest direction
-    occluded closer than each level's distance (an exact search, compiled)."""
+    occluded closer than each level's distance (an exact search, compiled). ``cone``:
+    see :func:`hull_depths`."""
     dirs, _ = sphere(directions)
-    depth = hull_depths(target, hulls, dirs)
+    target = np.asarray(target, dtype=float)
+    packed = PackedHulls.of(hulls)
+    depth = packed.depths(target, dirs, cone, float(far))
     ladder = np.linspace(near, far, levels)
     occluded = np.flatnonzero(depth < ladder[-1])
     first = np.searchsorted(ladder, depth[occluded], side="right")  # depth < ladder[first]
     order = np.argsort(first, kind="stable")
     clearance = _clearance(dirs, np.ascontiguousarray(dirs[occluded[order]]), first[order],
                            levels)
-    return ClearanceMap(ladder, clearance, depth, directions)
+    return ClearanceMap(ladder, clearance, depth, directions, target, packed, cone)

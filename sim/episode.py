@@ -175,7 +175,8 @@ class Episode:
                         ((float(base[0]), float(base[1])), s.search.reach_m))
         r, q = s.rating, s.search
         settings = SearchSettings(q.strategy, q.coarse_step, q.max_distance_m, q.samples,
-                                  r.unknown_occludes, r.hull_block)
+                                  r.unknown_occludes, r.hull_block,
+                                  cone=r.expansion == "cone")
         others = [pts for other in self.scene.robots if other is not robot
                   for pts in robot_points(self.model, self.data, other)]
         with self.timer("placement"):

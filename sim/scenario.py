@@ -186,6 +186,9 @@ class RatingConfig:
     free_threshold: float = _probability(0.05)  # candidate voxels: P below this
     unknown_occludes: bool = True  # never-observed voxels count as occluders for TFV
     hull_block: int = _check(lambda v: 1 <= v <= 64, "an integer 1 to 64", 4)  # voxels
+    # occluder expansion by the target: "cone" exact for the camera's distance, "paper"
+    # the whole target everywhere (conservative near the camera)
+    expansion: Literal["cone", "paper"] = "cone"
 
 
 @dataclass(frozen=True)
