@@ -2,38 +2,83 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
 import mujoco
 import numpy as np
 
 from .scene import Robot
 
 
-def _collision_geoms(model: mujoco.MjModel, bodies: frozenset[int]) -> list[int]:
+def collision_geoms(model: mujoco.MjModel, bodies: frozenset[int]) -> list[int]:
+    """Ids of the collidable geoms of ``bodies``."""
     return [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies
             and (model.geom_contype[g] or model.geom_conaffinity[g])]
 
 
+@dataclass(frozen=True)
+class Clearance:
+    """Smallest distances (m) from one robot, up to the probe's limit; negative when
+    penetrating."""
+
+    robots: float  # to the other robots
+    world: float  # to everything else but the floor: obstacles, work-piece, panel
+    own: float  # between its own links that are not neighbours
+
+    @property
+    def others(self) -> float:
+        return min(self.robots, self.world)
+
+    def summary(self) -> dict[str, float]:
+        return {"to_robots_m": round(self.robots, 5), "to_obstacles_m": round(self.world, 5),
+                "between_own_links_m": round(self.own, 5)}
+
+
+class Proximity:
+    """Measures one robot's clearance: its collision geoms against the other robots',
+    against the rest of the world (not the floor), and against its own."""
+
+    def __init__(self, model: mujoco.MjModel, robot: Robot, robots: Sequence[Robot],
+                 limit: float = 1.0) -> None:
+        self.model, self.limit = model, limit
+        self.own = collision_geoms(model, robot.body_ids)
+        other_bodies = frozenset().union(*(r.body_ids for r in robots if r is not robot))
+        self.robots = collision_geoms(model, other_bodies)
+        floor = model.geom("floor").id
+        self.world = [g for g in collision_geoms(
+            model, frozenset(range(model.nbody)) - robot.body_ids - other_bodies) if g != floor]
+        self.pairs_own = [(g, h) for i, g in enumerate(self.own) for h in self.own[i + 1:]
+                          if not _neighbours(model, g, h)]
+        self._fromto = np.zeros(6)
+
+    @property
+    def avoid(self) -> list[int]:
+        """Every geom the robot must keep clear of."""
+        return self.robots + self.world
+
+    def _min(self, pairs: Iterable[tuple[int, int]], data: mujoco.MjData) -> float:
+        best = self.limit
+        for g, h in pairs:
+            best = min(best, mujoco.mj_geomDistance(self.model, data, g, h, self.limit,
+                                                    self._fromto))
+        return float(best)
+
+    def measure(self, data: mujoco.MjData) -> Clearance:
+        return Clearance(self._min(((g, h) for g in self.own for h in self.robots), data),
+                         self._min(((g, h) for g in self.own for h in self.world), data),
+                         self._min(self.pairs_own, data))
+
+
+def _neighbours(model: mujoco.MjModel, g: int, h: int) -> bool:
+    bg, bh = model.geom_bodyid[g], model.geom_bodyid[h]
+    return bool(bg == bh or model.body_parentid[bg] == bh or model.body_parentid[bh] == bg)
+
+
 def clearance(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot,
-              limit: float = 1.0) -> tuple[float, float]:
-    """Smallest distances (m), up to ``limit``: from the robot to any other collidable
-    geometry but the floor, and between its own links that are not neighbours.
-    Negative when penetrating."""
-    own = _collision_geoms(model, robot.body_ids)
-    floor = model.geom("floor").id
-    others = [g for g in _collision_geoms(model, frozenset(range(model.nbody)) - robot.body_ids)
-              if g != floor]
-    fromto = np.zeros(6)
-    to_others = to_self = limit
-    for g in own:
-        for h in others:
-            to_others = min(to_others, mujoco.mj_geomDistance(model, data, g, h, limit, fromto))
-    for i, g in enumerate(own):
-        for h in own[i + 1:]:
-            bg, bh = model.geom_bodyid[g], model.geom_bodyid[h]
-            if bg == bh or model.body_parentid[bg] == bh or model.body_parentid[bh] == bg:
-                continue
-            to_self = min(to_self, mujoco.mj_geomDistance(model, data, g, h, limit, fromto))
-    return float(to_others), float(to_self)
+              robots: Sequence[Robot] = (), limit: float = 1.0) -> Clearance:
+    """One robot's clearance now (see :class:`Proximity`)."""
+    return Proximity(model, robot, robots, limit).measure(data)
 
 
 def blocked_rays(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot,
@@ -57,7 +102,7 @@ def robot_points(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot) -> li
     world (m): the robot as a set of convex occluders."""
     signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
     out = []
-    for g in _collision_geoms(model, robot.body_ids):
+    for g in collision_geoms(model, robot.body_ids):
         centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
         local = centre + signs * half
         out.append(data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T)

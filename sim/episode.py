@@ -3,19 +3,26 @@
 The stages, in order:
 1. the robots map the target region into the occupancy grid, choosing views by
    expected information (sim/exploration.py);
-2. robot by robot, the rating function is searched over known-free voxels; the best
-   candidates are tried in turn until one is reachable by IK (base and arm), keeps
-   clear of everything, and sees its target with no geometry in the way;
+2. robot by robot, the rating function is searched over known-free voxels (the robots
+   placed before count as occluders, at their commanded poses); the best candidates are
+   tried in turn until one is reachable by collision-avoiding IK (base and arm) along a
+   path that keeps clear of everything, and sees its target with no geometry in the
+   way; the robot then follows that path in physics, through its position actuators,
+   with its positioning errors (sim/motion.py), before the next robot plans;
 3. the scene is re-rendered from the reached poses and each target is located in the
    image.
+
+Planning uses the nominal model and the commanded joints (``belief``); the simulated
+world (``model``, ``data``) holds the truth, which only the evaluation reads.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections import defaultdict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -41,9 +48,10 @@ from placement import (
     target_points,
 )
 
-from .collision import blocked_rays, clearance, robot_points
+from .collision import Proximity, blocked_rays, robot_points
 from .exploration import Exploration
 from .ik import IKResult, solve_camera_pose
+from .motion import ErrorModel, MotionResult, Mover, dense_path
 from .record import Recorder
 from .render import Renderer, camera_pinhole, camera_pose
 from .scenario import Scenario
@@ -75,13 +83,16 @@ class Placement:
 
     robot: Robot
     target: Target | None = None
-    commanded: np.ndarray | None = None
+    commanded: np.ndarray | None = None  # the candidate position (m)
+    commanded_pose: dict[str, list[float]] | None = None  # the camera at the IK solution
     rating: dict[str, float] = field(default_factory=dict)
     ik: IKResult | None = None
+    motion: MotionResult | None = None
     strategy: str = "exhaustive"
     evaluated: int = 0  # candidates the search rated
     candidates_tried: int = 0  # of them, tried with IK
     rejections: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    unreachable: list[dict[str, Any]] = field(default_factory=list)  # residuals, first few
 
 
 def pose_dict(data: mujoco.MjData, camera: str) -> dict[str, list[float]]:
@@ -89,6 +100,17 @@ def pose_dict(data: mujoco.MjData, camera: str) -> dict[str, list[float]]:
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, data.camera(camera).xmat)
     return {"position": data.camera(camera).xpos.tolist(), "quat_wxyz": quat.tolist()}
+
+
+def pose_error(commanded: dict[str, list[float]], achieved: np.ndarray) -> dict[str, float]:
+    """Position (m) and rotation angle (deg) from a commanded camera pose (``pose_dict``)
+    to the achieved one (4x4, world from MuJoCo camera)."""
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, np.array(commanded["quat_wxyz"]))
+    rel = R.reshape(3, 3).T @ achieved[:3, :3]
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rel) - 1) / 2))))
+    return {"position_m": float(np.linalg.norm(achieved[:3, 3] - commanded["position"])),
+            "orientation_deg": angle}
 
 
 def target_model(t: Target) -> TargetModel:
@@ -135,8 +157,12 @@ class Episode:
         self.timer = Timer()
         with self.timer("build"):
             self.scene: Scene = build_scene(scenario)
-        self.model = self.scene.model
+        self.nominal = self.scene.model  # what the planner knows
+        self.model = copy.deepcopy(self.nominal)  # the simulated world: errors go here
         self.data = self.scene.make_data()
+        self.belief = self.scene.make_data()  # the commanded configuration
+        self.errors = ErrorModel(scenario.motion, self.scene.robots, self.rng)
+        self.mover = Mover(self.model, self.data, self.scene.robots, scenario.motion)
         self.grid = new_grid(scenario)
         self.recorder = Recorder(None, "")
         self.pinhole = camera_pinhole(self.model, self.scene.robots[0].camera)
@@ -166,11 +192,13 @@ class Episode:
         return summary
 
     def place(self, robot: Robot, taken: list[np.ndarray]) -> Placement:
-        """Stage 2 for one robot, given the camera positions already taken."""
+        """Stage 2 for one robot, given the camera positions already taken: search, plan,
+        and move there in the world."""
         s = self.s
         targets = self.scene.targets
+        belief = self.belief
         keep_out = tuple((tuple(p), s.search.robot_separation_m) for p in taken)
-        base = self.data.qpos[robot.qpos_adr[:2]]
+        base = belief.qpos[robot.qpos_adr[:2]]
         region = Region(s.search.camera_z_m[0], s.search.camera_z_m[1], keep_out,
                         ((float(base[0]), float(base[1])), s.search.reach_m))
         r, q = s.rating, s.search
@@ -178,14 +206,15 @@ class Episode:
                                   r.unknown_occludes, r.hull_block,
                                   cone=r.expansion == "cone")
         others = [pts for other in self.scene.robots if other is not robot
-                  for pts in robot_points(self.model, self.data, other)]
+                  for pts in robot_points(self.nominal, belief, other)]
         with self.timer("placement"):
             field_ = search(self.grid, [target_model(t) for t in targets], self.camera_model,
                             Weights(r.alpha, r.beta, r.gamma, r.delta), r.free_threshold,
                             region, settings, self.rng, others)
         self.recorder.candidates(robot.name, field_.ratings.positions, field_.ratings.total)
         result = Placement(robot, strategy=field_.strategy, evaluated=field_.evaluated)
-        start = self.data.qpos.copy()
+        start = belief.qpos.copy()
+        proximity = Proximity(self.nominal, robot, self.scene.robots)
         rejected: list[np.ndarray] = []
         for i in field_.ranked():
             if result.candidates_tried >= s.search.ik_candidates:
@@ -197,26 +226,61 @@ class Episode:
             result.candidates_tried += 1
             rejected.append(position)
             with self.timer("ik"):
-                ik = solve_camera_pose(self.model, start, robot, target.position, position,
-                                       move_base=s.robots.move_base)
+                ik = solve_camera_pose(self.nominal, start, robot, target.position, position,
+                                       move_base=s.robots.move_base, avoid=proximity.avoid,
+                                       margin_m=q.clearance_m + s.motion.ik_margin_m)
             if not ik.converged:
                 result.rejections["unreachable"] += 1
+                if len(result.unreachable) < 5:
+                    result.unreachable.append({
+                        "position": position.round(4).tolist(),
+                        "position_error_m": round(ik.position_error_m, 5),
+                        "orientation_error_deg": round(ik.orientation_error_deg, 4)})
                 continue
-            self._set_robot(robot, ik.qpos)
-            to_others, to_self = clearance(self.model, self.data, robot)
-            if to_others < s.search.clearance_m or to_self <= 0.0:
-                result.rejections["collision"] += 1
-                continue
-            if blocked_rays(self.model, self.data, robot, target_points(target_model(target))):
-                result.rejections["occluded"] += 1
+            with self.timer("path check"):
+                reason = self._check_path(robot, ik.path, proximity)
+            if reason is None:
+                self._set_belief(robot, ik.qpos)
+                if blocked_rays(self.nominal, belief, robot,
+                                target_points(target_model(target))):
+                    reason = "occluded"
+            if reason is not None:
+                result.rejections[reason] += 1
+                self._set_belief(robot, start)
                 continue
             result.target, result.commanded, result.ik = target, position, ik
+            result.commanded_pose = pose_dict(belief, robot.camera)
             result.rating = field_.ratings.terms(int(i))
             self.recorder.chosen(robot.name, position, target.position, target.name)
             self.recorder.hulls(robot.name, field_.hulls[target.name])
+            with self.timer("motion"):
+                result.motion = self.mover.follow(robot, ik.path, self.errors.draw(robot),
+                                                  self._recorded(robot))
             return result
-        self._set_robot(robot, start)
+        self._set_belief(robot, start)
         return result
+
+    def _recorded(self, robot: Robot) -> Callable[[float], None]:
+        """Logs the robot as it moves, at a simulated time (s)."""
+        links = sorted(robot.body_ids)
+
+        def log(t: float) -> None:
+            self.recorder.motion(robot.name, t, self.data.xpos[links],
+                                 camera_pose(self.data, robot.camera))
+        return log
+
+    def _check_path(self, robot: Robot, path: np.ndarray, proximity: Proximity) -> str | None:
+        """Why the planned joint path may not be taken (None: it may): every point along
+        it, densely, keeps the clearance from the other robots (at their commanded poses)
+        and the world, and the robot's links apart."""
+        q = self.belief.qpos.copy()
+        for joints in dense_path(path):
+            q[robot.qpos_adr] = joints
+            self._set_belief(robot, q)
+            near = proximity.measure(self.belief)
+            if near.own <= 0.0 or near.others < self.s.search.clearance_m:
+                return "collision"
+        return None
 
     def look(self, placements: list[Placement], renderer: Renderer) -> list[dict[str, Any]]:
         """Stage 3: render from the reached poses and find each target in the image."""
@@ -235,11 +299,16 @@ class Episode:
                                    "placed": p.target is not None,
                                    "pose": pose_dict(self.data, robot.camera)}
             if p.target is not None and p.ik is not None and p.commanded is not None:
+                achieved = camera_pose(self.data, robot.camera)
+                planned = p.commanded_pose or {}
                 row.update({
-                    "commanded_pose": {"position": p.commanded.tolist()},
+                    "candidate_position": p.commanded.tolist(),
+                    "commanded_pose": planned,
+                    "positioning_error": pose_error(planned, achieved),
                     "target": p.target.summary(),
                     "rating": p.rating,
                     "ik": p.ik.summary(),
+                    "motion": None if p.motion is None else p.motion.summary(),
                     **find_target(rgb, seg, p.target, self.model.geom(p.target.geom).id,
                                   camera_pose(self.data, robot.camera), pinhole),
                 })
@@ -248,6 +317,7 @@ class Episode:
             row["search"] = {"strategy": p.strategy, "candidates_evaluated": p.evaluated}
             row["candidates_tried"] = p.candidates_tried
             row["rejections"] = dict(p.rejections)
+            row["unreachable"] = p.unreachable
             rows.append(row)
         return rows
 
@@ -261,6 +331,7 @@ class Episode:
                               [t.radius for t in targets])
         with Renderer(self.model, self.pinhole.width, self.pinhole.height) as renderer:
             mapping = self.map(renderer)
+            self._hold()
             placements: list[Placement] = []
             taken: list[np.ndarray] = []
             for robot in self.scene.robots:
@@ -270,7 +341,7 @@ class Episode:
                 if p.commanded is not None:
                     taken.append(p.commanded)
             robots = self.look(placements, renderer)
-        xml = self.scene.to_xml(self.data.qpos.copy())
+        xml = self.scene.to_xml(self.data.qpos.copy(), self.mover.mount_overrides())
         self.timer.totals["total"] = time.perf_counter() - t0
         summary = {
             "version": VERSION, "scenario": self.s.name, "seed": self.s.seed,
@@ -281,8 +352,17 @@ class Episode:
 
     # ------------------------------------------------------------ helpers
 
-    def _set_robot(self, robot: Robot, qpos: np.ndarray) -> None:
-        self.scene.set_robot(self.data, robot, qpos)
+    def _hold(self) -> None:
+        """After mapping's kinematic moves: the actuators hold where the robots are, and
+        the planner knows it (no error has been made yet)."""
+        self.data.ctrl[:] = self.scene.ctrl_for(self.data.qpos)
+        self.data.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+        self.belief.qpos[:] = self.data.qpos
+        mujoco.mj_forward(self.nominal, self.belief)
+
+    def _set_belief(self, robot: Robot, qpos: np.ndarray) -> None:
+        self.scene.set_robot(self.belief, robot, qpos)
 
     def _tick(self) -> None:
         self.step += 1

@@ -177,8 +177,8 @@ class Exploration:
             if ik.position_error_m > CLOSE_ENOUGH_M or ik.orientation_error_deg > 5.0:
                 continue
             scene.set_robot(data, robot, ik.qpos)
-            to_others, to_self = clearance(scene.model, data, robot)
-            if to_others >= self.s.search.clearance_m and to_self > 0:
+            near = clearance(scene.model, data, robot, scene.robots)
+            if near.others >= self.s.search.clearance_m and near.own > 0:
                 T = opencv_pose(camera_pose(data, robot.camera))
                 out.append(Candidate(robot, ik.qpos, View(T),
                                      float(np.linalg.norm(T[:3, 3] - camera_now))))

@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mink
 import mujoco
 import numpy as np
 
+from .collision import collision_geoms
 from .scene import BASE_JOINTS, JOINT_SPEEDS, ROBOT_JOINTS, Robot
 
 OPTICAL_AXIS = (0.0, 0.0, -1.0)  # a MuJoCo camera looks along its -z axis
+SELF_MARGIN_M = 0.005  # between a robot's own links (some sit 1.5 cm apart at home)
 
 
 @dataclass(frozen=True)
@@ -23,11 +27,15 @@ class IKResult:
     orientation_error_deg: float  # optical axis to the direction of the look-at point
     iterations: int
     converged: bool
+    path: np.ndarray  # (iterations + 1, 9) the robot's joints at each iterate, from q0
+    errors: np.ndarray  # (iterations + 1, 2) position (m) and angle (deg) errors there
+    time_s: float = 0.0  # wall clock
 
     def summary(self) -> dict[str, float | int | bool]:
         return {"position_error_m": self.position_error_m,
                 "orientation_error_deg": self.orientation_error_deg,
-                "iterations": self.iterations, "converged": self.converged}
+                "iterations": self.iterations, "converged": self.converged,
+                "time_s": round(self.time_s, 4)}
 
 
 def camera_errors(model: mujoco.MjModel, data: mujoco.MjData, site: str,
@@ -60,12 +68,18 @@ def solve_camera_pose(
     position: np.ndarray | None = None,
     move_base: bool = True,
     settings: IKSettings = IKSettings(),
+    avoid: Sequence[int] = (),
+    margin_m: float = 0.0,
 ) -> IKResult:
     """Move ``robot`` (only) so its left camera sits at ``position`` looking at ``look_at``.
 
     With ``position`` None only the gaze is controlled. The other robots' joints, and
     the base when ``move_base`` is False, are frozen. Joint ranges and speeds are limits.
+    With ``avoid`` (geom ids), the robot's collision geoms keep ``margin_m`` from them
+    and its own links from each other, at every iterate: the iterates are then a
+    collision-free joint-space path from ``q0`` (at the step's resolution).
     """
+    started = time.perf_counter()
     config = mink.Configuration(model, q0)
     site = robot.optical_site
     look = mink.LookAtTask(site, "site", axis=OPTICAL_AXIS, cost=1.0)
@@ -87,9 +101,19 @@ def solve_camera_pose(
     frozen = [i for i in range(model.nv) if i not in own]
     constraints = [mink.DofFreezingTask(model, dof_indices=frozen)] if frozen else []
     speeds = {robot.joint(j): JOINT_SPEEDS[j] for j in ROBOT_JOINTS}
-    limits = [mink.ConfigurationLimit(model), mink.VelocityLimit(model, speeds)]
+    limits: list[mink.Limit] = [mink.ConfigurationLimit(model),
+                                mink.VelocityLimit(model, speeds)]
+    if len(avoid):
+        own_geoms = collision_geoms(model, robot.body_ids)
+        limits.append(mink.CollisionAvoidanceLimit(
+            model, [(own_geoms, list(avoid))], minimum_distance_from_collisions=margin_m,
+            collision_detection_distance=margin_m + 0.1))
+        limits.append(mink.CollisionAvoidanceLimit(  # its own links: only kept apart
+            model, [(own_geoms, own_geoms)], minimum_distance_from_collisions=SELF_MARGIN_M,
+            collision_detection_distance=SELF_MARGIN_M + 0.02))
 
     errors = camera_errors(model, config.data, site, position, look_at)
+    path, history = [config.q[robot.qpos_adr].copy()], [errors]
     iterations = 0
     while iterations < settings.max_iterations and not _within(errors, settings):
         try:
@@ -101,7 +125,10 @@ def solve_camera_pose(
         config.integrate_inplace(velocity, settings.dt)
         iterations += 1
         errors = camera_errors(model, config.data, site, position, look_at)
-    return IKResult(config.q.copy(), errors[0], errors[1], iterations, _within(errors, settings))
+        path.append(config.q[robot.qpos_adr].copy())
+        history.append(errors)
+    return IKResult(config.q.copy(), errors[0], errors[1], iterations, _within(errors, settings),
+                    np.array(path), np.array(history), time.perf_counter() - started)
 
 
 def _within(errors: tuple[float, float], settings: IKSettings) -> bool:

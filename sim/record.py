@@ -2,7 +2,9 @@
 
 Entity paths: ``world/grid``, ``world/targets``, ``world/<robot>/camera`` (a pinhole with
 ``rgb`` and ``depth`` beneath it), ``world/<robot>/candidates``, ``world/<robot>/chosen``.
-Everything is on the ``step`` timeline. Quaternions go to rerun as x, y, z, w.
+Everything is on the ``step`` timeline; the robots' moves (``world/<robot>/links`` and
+their cameras) are on the ``sim_time`` timeline too. Quaternions go to rerun as x, y, z,
+w.
 """
 
 from __future__ import annotations
@@ -111,6 +113,18 @@ class Recorder:
                      rr.Mesh3D(vertex_positions=tris,
                                triangle_indices=np.arange(len(tris)).reshape(-1, 3),
                                albedo_factor=[0.9, 0.3, 0.3, 0.35]))
+
+    def motion(self, robot: str, time_s: float, links: np.ndarray,
+               T_world_mjcam: np.ndarray) -> None:
+        """The robot during a move, on the ``sim_time`` timeline: its links' origins as a
+        line and its camera's pose."""
+        if self.rec is None:
+            return
+        self.rec.set_time("sim_time", duration=time_s)
+        self.rec.log(f"world/{robot}/links", rr.LineStrips3D([links], colors=[230, 140, 40]))
+        T = opencv_pose(T_world_mjcam)
+        self.rec.log(f"world/{robot}/camera", rr.Transform3D(translation=T[:3, 3],
+                                                             mat3x3=T[:3, :3]))
 
     def chosen(self, robot: str, position: np.ndarray, target: np.ndarray, label: str) -> None:
         if self.rec is not None:

@@ -207,6 +207,26 @@ class SearchConfig:
 
 
 @dataclass(frozen=True)
+class MotionConfig:
+    """How the arms and bases move (in physics), and how imperfectly (sec. 2.4).
+
+    The errors are standard deviations; zero is a perfect robot. Joint offsets are drawn
+    once per robot and episode (calibration); joint noise, base errors and the
+    suspension tilt are drawn afresh for every move. The planner never sees them.
+    """
+
+    speed_scale: float = _check(lambda v: 0 < v <= 1, "a fraction in (0, 1]", 0.5)
+    settle_s: float = _nonnegative(2.0)  # held at the goal after the path (s)
+    check_every_s: float = _positive(0.02)  # clearance sampled this often (s)
+    ik_margin_m: float = _nonnegative(0.02)  # IK keeps this beyond search.clearance_m
+    joint_offset_deg: float = _nonnegative(0.0)
+    joint_noise_deg: float = _nonnegative(0.0)
+    base_offset_m: float = _nonnegative(0.0)  # x and y each
+    base_yaw_deg: float = _nonnegative(0.0)
+    suspension_deg: float = _nonnegative(0.0)  # base roll and pitch each
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str = "default"
     seed: int = _check(lambda v: v >= 0, "an integer >= 0", 0)
@@ -219,6 +239,7 @@ class Scenario:
     mapping: MappingConfig = field(default_factory=MappingConfig)
     rating: RatingConfig = field(default_factory=RatingConfig)
     search: SearchConfig = field(default_factory=SearchConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
     source: str = "<defaults>"  # the file it was read from
 
     def sensor(self) -> tuple[float, float, float, float]:

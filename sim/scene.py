@@ -112,7 +112,7 @@ class Scene:
     def make_data(self, qpos: np.ndarray | None = None) -> mujoco.MjData:
         data = mujoco.MjData(self.model)
         data.qpos[:] = self.start_qpos if qpos is None else qpos
-        data.ctrl[:] = self._ctrl_for(data.qpos)
+        data.ctrl[:] = self.ctrl_for(data.qpos)
         mujoco.mj_forward(self.model, data)
         return data
 
@@ -121,18 +121,24 @@ class Scene:
         data.qpos[robot.qpos_adr] = qpos[robot.qpos_adr]
         mujoco.mj_forward(self.model, data)
 
-    def _ctrl_for(self, qpos: np.ndarray) -> np.ndarray:
+    def ctrl_for(self, qpos: np.ndarray) -> np.ndarray:
         """Position-actuator set points that hold ``qpos``."""
         return qpos[self.model.jnt_qposadr[self.model.actuator_trnid[:, 0]]]
 
-    def to_xml(self, final_qpos: np.ndarray) -> str:
-        """Self-contained MJCF of the scene with keyframes ``start`` and ``final``."""
+    def to_xml(self, final_qpos: np.ndarray,
+               bodies: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> str:
+        """Self-contained MJCF of the scene with keyframes ``start`` and ``final``;
+        ``bodies`` overrides named bodies' (pos, quat) relative to their parents (the
+        world as it ended, e.g. the arms' tilted mounts)."""
+        for name, (pos, quat) in (bodies or {}).items():
+            body = self.spec.body(name)
+            body.pos, body.quat = list(pos), list(quat)
         for name, qpos in (("start", self.start_qpos), ("final", final_qpos)):
             key = self.spec.key(name)
             if key is None:
                 key = self.spec.add_key(name=name)
             key.qpos = qpos.tolist()
-            key.ctrl = self._ctrl_for(qpos).tolist()
+            key.ctrl = self.ctrl_for(qpos).tolist()
             key.mpos = self.model.body_pos[self.model.body_mocapid >= 0].ravel().tolist()
             key.mquat = self.model.body_quat[self.model.body_mocapid >= 0].ravel().tolist()
         self.spec.compile()  # to_xml needs a compiled spec; self.model stays as it was
@@ -236,6 +242,8 @@ def _robots(spec: mujoco.MjSpec, s: Scenario) -> list[float]:
         yaw = math.remainder(math.radians(base.yaw_deg), 2 * math.pi)  # within the joint's range
         start += [base.x, base.y, yaw, *list(home.qpos)[3:]]
         robot.delete(home)  # the scene has keyframes of its own
+        for body in robot.bodies:  # the arm's controller carries its weight
+            body.gravcomp = 1.0
         spec.worldbody.add_frame().attach_body(robot.body("base"), f"r{i + 1}/", "")
     return start
 

@@ -119,8 +119,8 @@ def test_robots_keep_clear_of_each_other_and_the_scene(default_run):
     from sim.scene import build_scene
     scene = build_scene(scenario)  # the same scene: robot indices for the final model
     for robot in scene.robots:
-        to_others, to_self = clearance(model, data, robot)
-        assert to_others >= scenario.search.clearance_m and to_self > 0
+        near = clearance(model, data, robot, scene.robots)
+        assert near.others >= scenario.search.clearance_m and near.own > 0
 
 
 def _without_times(summary: dict) -> dict:
