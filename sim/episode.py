@@ -48,10 +48,11 @@ from placement import (
     target_points,
 )
 
-from .collision import Proximity, blocked_rays, robot_points
+from .collision import blocked_rays, robot_points
 from .exploration import Exploration
-from .ik import IKResult, solve_camera_pose
-from .motion import ErrorModel, MotionResult, Mover, dense_path
+from .ik import IKResult
+from .motion import ErrorModel, MotionResult, Mover
+from .planning import ArmPlanner
 from .record import Recorder
 from .render import Renderer, camera_pinhole, camera_pose
 from .scenario import Scenario
@@ -214,7 +215,8 @@ class Episode:
         self.recorder.candidates(robot.name, field_.ratings.positions, field_.ratings.total)
         result = Placement(robot, strategy=field_.strategy, evaluated=field_.evaluated)
         start = belief.qpos.copy()
-        proximity = Proximity(self.nominal, robot, self.scene.robots)
+        planner = ArmPlanner(self.scene, belief, q.clearance_m,
+                             q.clearance_m + s.motion.ik_margin_m, s.robots.move_base)
         rejected: list[np.ndarray] = []
         for i in field_.ranked():
             if result.candidates_tried >= s.search.ik_candidates:
@@ -226,28 +228,21 @@ class Episode:
             result.candidates_tried += 1
             rejected.append(position)
             with self.timer("ik"):
-                ik = solve_camera_pose(self.nominal, start, robot, target.position, position,
-                                       move_base=s.robots.move_base, avoid=proximity.avoid,
-                                       margin_m=q.clearance_m + s.motion.ik_margin_m)
-            if not ik.converged:
-                result.rejections["unreachable"] += 1
-                if len(result.unreachable) < 5:
-                    result.unreachable.append({
-                        "position": position.round(4).tolist(),
-                        "position_error_m": round(ik.position_error_m, 5),
-                        "orientation_error_deg": round(ik.orientation_error_deg, 4)})
-                continue
-            with self.timer("path check"):
-                reason = self._check_path(robot, ik.path, proximity)
-            if reason is None:
-                self._set_belief(robot, ik.qpos)
-                if blocked_rays(self.nominal, belief, robot,
-                                target_points(target_model(target))):
-                    reason = "occluded"
+                plan = planner.plan(robot, target.position, position)
+            reason = plan.reason
+            if reason is None and blocked_rays(self.nominal, belief, robot,
+                                               target_points(target_model(target))):
+                reason = "occluded"
+                self._set_belief(robot, start)
             if reason is not None:
                 result.rejections[reason] += 1
-                self._set_belief(robot, start)
+                if reason == "unreachable" and len(result.unreachable) < 5:
+                    result.unreachable.append({
+                        "position": position.round(4).tolist(),
+                        "position_error_m": round(plan.ik.position_error_m, 5),
+                        "orientation_error_deg": round(plan.ik.orientation_error_deg, 4)})
                 continue
+            ik = plan.ik
             result.target, result.commanded, result.ik = target, position, ik
             result.commanded_pose = pose_dict(belief, robot.camera)
             result.rating = field_.ratings.terms(int(i))
@@ -257,7 +252,6 @@ class Episode:
                 result.motion = self.mover.follow(robot, ik.path, self.errors.draw(robot),
                                                   self._recorded(robot))
             return result
-        self._set_belief(robot, start)
         return result
 
     def _recorded(self, robot: Robot) -> Callable[[float], None]:
@@ -268,19 +262,6 @@ class Episode:
             self.recorder.motion(robot.name, t, self.data.xpos[links],
                                  camera_pose(self.data, robot.camera))
         return log
-
-    def _check_path(self, robot: Robot, path: np.ndarray, proximity: Proximity) -> str | None:
-        """Why the planned joint path may not be taken (None: it may): every point along
-        it, densely, keeps the clearance from the other robots (at their commanded poses)
-        and the world, and the robot's links apart."""
-        q = self.belief.qpos.copy()
-        for joints in dense_path(path):
-            q[robot.qpos_adr] = joints
-            self._set_belief(robot, q)
-            near = proximity.measure(self.belief)
-            if near.own <= 0.0 or near.others < self.s.search.clearance_m:
-                return "collision"
-        return None
 
     def look(self, placements: list[Placement], renderer: Renderer) -> list[dict[str, Any]]:
         """Stage 3: render from the reached poses and find each target in the image."""

@@ -111,6 +111,12 @@ class Mover:
                                     world.body_quat[self.mounts[r.name]].copy())
                            for r in robots}
         self.proximity = {r.name: Proximity(world, r, robots) for r in robots}
+        # Seconds of lead per joint: a position servo with gain kp and damping d (its kv
+        # plus the joint's) trails a ramp by d / kp; commanding that much ahead cancels it.
+        self.lead = {r.name: np.array([
+            (-world.actuator_biasprm[a, 2] + world.dof_damping[world.jnt_dofadr[
+                world.actuator_trnid[a, 0]]]) / world.actuator_gainprm[a, 0]
+            for a in self.actuators[r.name]]) for r in robots}
 
     def mount_overrides(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Every arm mount's (pos, quat) in the world now, by body name."""
@@ -151,6 +157,11 @@ class Mover:
         when = np.minimum((np.arange(n) + 1) * dt, times[-1])
         setpoints = np.column_stack([np.interp(when, times, path[:, j])
                                      for j in range(path.shape[1])]) + error.setpoints
+        if len(path) > 1:  # velocity feed-forward along each segment, none once there
+            rates = np.diff(path, axis=0) / np.maximum(np.diff(times), 1e-12)[:, None]
+            segment = np.clip(np.searchsorted(times, when, side="left") - 1, 0, len(rates) - 1)
+            moving = (when < times[-1])[:, None]
+            setpoints += moving * rates[segment] * self.lead[robot.name]
         own = np.array(sorted(own_geoms))
         for k in range(n):
             d.ctrl[act] = setpoints[k]

@@ -123,10 +123,14 @@ def test_robots_keep_clear_of_each_other_and_the_scene(default_run):
         assert near.others >= scenario.search.clearance_m and near.own > 0
 
 
-def _without_times(summary: dict) -> dict:
-    out = {k: v for k, v in summary.items() if k != "timings_s"}
-    out["mapping"] = {k: v for k, v in summary["mapping"].items() if k != "time_s"}
-    return out
+def _without_times(summary):
+    """The summary without wall-clock times (``timings_s`` and every ``time_s``)."""
+    if isinstance(summary, dict):
+        return {k: _without_times(v) for k, v in summary.items()
+                if k not in ("timings_s", "time_s")}
+    if isinstance(summary, list):
+        return [_without_times(v) for v in summary]
+    return summary
 
 
 def test_same_seed_same_summary(default_run):

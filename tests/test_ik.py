@@ -38,6 +38,14 @@ def test_reaches_a_look_at_pose_within_1mm_and_01deg(scene, offset):
     assert _within_limits(scene, result.qpos)
     others = np.setdiff1d(np.arange(scene.model.nq), robot.qpos_adr)
     assert np.array_equal(result.qpos[others], scene.start_qpos[others])
+    # the position error falls at every step, and the path it took stays in the limits
+    assert len(result.errors) == result.iterations + 1
+    assert np.all(np.diff(result.errors[:, 0]) < 0)
+    assert result.errors[-1, 1] < 0.1 and result.errors[0, 1] > result.errors[-1, 1]
+    for joints in result.path:
+        q = scene.start_qpos.copy()
+        q[robot.qpos_adr] = joints
+        assert _within_limits(scene, q)
 
 
 def test_gaze_only_with_the_base_frozen(scene):
