@@ -1,4 +1,6 @@
-"""Calibration from images: target detection (sec. 2.2). Free of MuJoCo."""
+"""Calibration from images (sec. 2.2, 2.4): target detection; natural fiducials, the
+camera's pose from them (eq. 5-6, Kabsch, SQPnP), recursive pose statistics (eq. 7),
+fiducial EKFs (eq. 10-12) and bundle adjustment of stereo keyframes. Free of MuJoCo."""
 
 from .targets import HoleDetection, detect_holes, disk_template, locate_hole, log_response, to_gray
 
