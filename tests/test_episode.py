@@ -69,6 +69,20 @@ def test_three_and_four_robots_place_and_see(count, tmp_path):
     assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-record"]) == 0
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert [r["placed"] and r["seen"] for r in summary["robots"]] == [True] * count
+    for r in summary["robots"]:  # moved in physics without touching anything
+        assert r["motion"]["contact_steps"] == 0
+        assert r["motion"]["min_clearance_to_robots_m"] > 0.0
+        assert r["motion"]["min_clearance_to_obstacles_m"] > 0.0
+    positions = np.array([r["pose"]["position"] for r in summary["robots"]])
+    gaps = np.linalg.norm(positions[:, None] - positions[None], axis=2)
+    assert gaps[np.triu_indices(count, 1)].min() >= 0.4  # 0.5 m apart as planned, errors on
+    model, data = _final(tmp_path / "o")  # and nothing touches at the end, in the world
+    mujoco.mj_forward(model, data)
+    robots = [name for name in (f"r{i + 1}/" for i in range(count))]
+    for c in data.contact[:data.ncon]:
+        names = [model.body(model.geom_bodyid[g]).name for g in (c.geom1, c.geom2)]
+        owners = {next((r for r in robots if n.startswith(r)), n) for n in names}
+        assert len(owners) == 1 or not any(o in robots for o in owners), names
 
 
 def test_reported_pose_matches_the_named_camera_in_scene_xml(default_run):

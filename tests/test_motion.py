@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 import math
-import tomllib
 
 import numpy as np
 import pytest
@@ -12,10 +11,9 @@ from rerun.chunk import RrdReader
 from scipy.spatial.transform import Rotation
 
 from sim import build_scene, load_scenario
-from sim.episode import Episode
 from sim.motion import ARM_MOUNT, ErrorModel, MoveError, Mover
 from sim.planning import ArmPlanner
-from sim.scenario import DEFAULT_SCENARIO, MotionConfig, parse_scenario
+from sim.scenario import MotionConfig, parse_scenario
 
 CLEARANCE_M = 0.03
 
@@ -145,35 +143,6 @@ def test_achieved_minus_commanded_matches_the_configured_errors(default_scene):
     # the camera ends up off its commanded pose by the error, not by the controller
     perfect, _, _ = _moves(default_scene, MotionConfig(settle_s=1.5), 10)
     assert np.abs(perfect).max() < 1e-3
-
-
-@pytest.mark.parametrize("count", [3, 4])
-def test_three_and_four_robots_place_without_collision(count):
-    scenario = load_scenario()
-    data = scenario_dict()
-    data["robots"] = {"count": count, "start_radius_m": 1.9}
-    episode = Episode(parse_scenario(data))
-    summary, _ = episode.run()
-    placed = [r for r in summary["robots"] if r["placed"]]
-    assert len(placed) == count
-    for r in placed:
-        assert r["motion"]["contact_steps"] == 0
-        assert r["motion"]["min_clearance_to_robots_m"] > 0.0
-        assert r["motion"]["min_clearance_to_obstacles_m"] > 0.0
-    positions = np.array([r["pose"]["position"] for r in placed])
-    gaps = np.linalg.norm(positions[:, None] - positions[None], axis=2)[np.triu_indices(count, 1)]
-    assert gaps.min() >= scenario.search.robot_separation_m - 0.1  # apart, errors included
-    for robot in episode.scene.robots:  # nothing touches at the end, in the world
-        contacts = [episode.data.contact[i] for i in range(episode.data.ncon)]
-        own = {g for g in range(episode.model.ngeom)
-               if episode.model.geom_bodyid[g] in robot.body_ids}
-        assert not [c for c in contacts if (c.geom1 in own) != (c.geom2 in own)]
-
-
-def scenario_dict() -> dict:
-    """The default scenario file's content as a dict (to change a table and reparse)."""
-    with open(DEFAULT_SCENARIO, "rb") as f:
-        return tomllib.load(f)
 
 
 def test_motion_is_recorded_on_the_simulated_timeline(default_run):
