@@ -254,11 +254,11 @@ class Episode:
             return result
         return result
 
-    def _recorded(self, robot: Robot) -> Callable[[float], None]:
+    def _recorded(self, robot: Robot) -> Callable[[float, np.ndarray], None]:
         """Logs the robot as it moves, at a simulated time (s)."""
         links = sorted(robot.body_ids)
 
-        def log(t: float) -> None:
+        def log(t: float, commanded: np.ndarray) -> None:
             self.recorder.motion(robot.name, t, self.data.xpos[links],
                                  camera_pose(self.data, robot.camera))
         return log

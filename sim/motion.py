@@ -30,6 +30,8 @@ from .scenario import MotionConfig
 from .scene import JOINT_SPEEDS, ROBOT_JOINTS, Robot
 
 ARM_MOUNT = "arm_base"  # the body the suspension tilts, about the base's floor point
+MIN_JERK_STRETCH = 15 / 8  # a minimum-jerk move's duration over its constant-speed one
+TILT_EVERY = 10  # physics steps between updates of the building-up suspension tilt
 
 
 @dataclass(frozen=True)
@@ -124,7 +126,7 @@ class Mover:
                                           self.world.body_quat[self.mounts[r.name]].copy())
                 for r in self.robots}
 
-    def tilt(self, robot: Robot, roll: float, pitch: float) -> None:
+    def tilt(self, robot: Robot, roll: float, pitch: float, forward: bool = True) -> None:
         """Tilt the robot's arm mount about the base's floor point (in the world only)."""
         body = self.mounts[robot.name]
         pos, quat = self.mount_pose[robot.name]
@@ -132,18 +134,25 @@ class Mover:
         self.world.body_pos[body] = R.apply(pos)
         q = (R * Rotation.from_quat(quat, scalar_first=True)).as_quat(scalar_first=True)
         self.world.body_quat[body] = q
-        mujoco.mj_forward(self.world, self.data)
+        if forward:
+            mujoco.mj_forward(self.world, self.data)
 
     def follow(self, robot: Robot, path: np.ndarray, error: MoveError,
-               on_sample: Callable[[float], None] | None = None,
+               on_sample: Callable[[float, np.ndarray], None] | None = None,
                sample_every_s: float = 0.05) -> MotionResult:
-        """Drive ``robot``'s set points along ``path`` (k, 9) in time, plus the move's
-        error, then hold the goal for the settle time; step the physics throughout."""
+        """Drive ``robot``'s set points along ``path`` (k, 9), then hold the goal for the
+        settle time, stepping the physics throughout.
+
+        The path is timed at ``speed_scale`` of the joint speed limits and run along a
+        minimum-jerk profile (at rest at both ends; 15/8 as long, the same peak speed),
+        with velocity feed-forward. The move's error builds up along the same profile
+        (none at the start, where the pose was known; all of it at the end).
+        ``on_sample(t, commanded)`` is called every ``sample_every_s`` of simulated time
+        with the commanded joints then (what the planner knows)."""
         m, d, cfg = self.world, self.data, self.cfg
-        self.tilt(robot, *error.tilt)
         act = self.actuators[robot.name]
-        times = timed_path(path, cfg.speed_scale)
-        end = times[-1] + cfg.settle_s
+        knots = timed_path(path, cfg.speed_scale)
+        duration = MIN_JERK_STRETCH * knots[-1]
         dt = m.opt.timestep
         check = max(1, round(cfg.check_every_s / dt))
         sample = max(1, round(sample_every_s / dt))
@@ -153,17 +162,26 @@ class Mover:
         closest = probe.measure(d)
         contacts, steps, t0 = 0, 0, d.time
         samples = [(float(d.time), d.qpos[robot.qpos_adr].copy())]
-        n = math.ceil(end / dt)
-        when = np.minimum((np.arange(n) + 1) * dt, times[-1])
-        setpoints = np.column_stack([np.interp(when, times, path[:, j])
-                                     for j in range(path.shape[1])]) + error.setpoints
-        if len(path) > 1:  # velocity feed-forward along each segment, none once there
-            rates = np.diff(path, axis=0) / np.maximum(np.diff(times), 1e-12)[:, None]
-            segment = np.clip(np.searchsorted(times, when, side="left") - 1, 0, len(rates) - 1)
-            moving = (when < times[-1])[:, None]
-            setpoints += moving * rates[segment] * self.lead[robot.name]
+        n = math.ceil((duration + cfg.settle_s) / dt)
+        tau = np.minimum((np.arange(n) + 1) * dt / max(duration, 1e-9), 1.0)
+        progress = tau ** 3 * (10 - 15 * tau + 6 * tau ** 2)  # minimum jerk, 0 to 1
+        speed = 30 * tau ** 2 * (1 - tau) ** 2 / max(duration, 1e-9)  # d progress / dt
+        nominal = progress * knots[-1]
+        commanded = np.column_stack([np.interp(nominal, knots, path[:, j])
+                                     for j in range(path.shape[1])])
+        setpoints = commanded + progress[:, None] * error.setpoints
+        if len(path) > 1:  # velocity feed-forward: the servo's lag, led
+            rates = np.diff(path, axis=0) / np.maximum(np.diff(knots), 1e-12)[:, None]
+            segment = np.clip(np.searchsorted(knots, nominal, side="left") - 1, 0,
+                              len(rates) - 1)
+            velocity = rates[segment] * (speed * knots[-1])[:, None]
+            setpoints += velocity * self.lead[robot.name]
+        tilt = np.array(error.tilt)
         own = np.array(sorted(own_geoms))
         for k in range(n):
+            if k % TILT_EVERY == 0 or k == n - 1:
+                roll, pitch = progress[k] * tilt
+                self.tilt(robot, float(roll), float(pitch), forward=False)
             d.ctrl[act] = setpoints[k]
             mujoco.mj_step(m, d)
             steps += 1
@@ -179,5 +197,5 @@ class Mover:
             if steps % sample == 0 or k == n - 1:
                 samples.append((float(d.time), d.qpos[robot.qpos_adr].copy()))
                 if on_sample is not None:
-                    on_sample(float(d.time))
+                    on_sample(float(d.time), commanded[k])
         return MotionResult(float(d.time - t0), steps, closest, contacts, samples)
