@@ -75,6 +75,29 @@ def _lookup(offsets: np.ndarray, levels: np.ndarray, clearance: np.ndarray,
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def _interval(origin: np.ndarray, d: np.ndarray, scale: float, A: np.ndarray, b: np.ndarray,
+              reach: np.ndarray, grown: bool, lo_f: int, hi_f: int, lo: float, hi: float,
+              cut: float) -> tuple[float, float]:
+    """The values x in [lo, hi] with x (scale A.d + reach) <= b - A.origin on every face of
+    rows lo_f:hi_f (``reach`` counted only if ``grown``); empty (lo > hi) as soon as it
+    is, or once lo reaches ``cut``."""
+    for f in range(lo_f, hi_f):
+        rate = scale * (A[f, 0] * d[0] + A[f, 1] * d[1] + A[f, 2] * d[2])
+        if grown:
+            rate += reach[f]
+        room = b[f] - (A[f, 0] * origin[0] + A[f, 1] * origin[1] + A[f, 2] * origin[2])
+        if rate > 1e-12:
+            hi = min(hi, room / rate)
+        elif rate < -1e-12:
+            lo = max(lo, room / rate)
+        elif room < 0.0:
+            return np.inf, -np.inf  # parallel to a face, outside it
+        if lo > hi or lo >= cut:
+            return np.inf, -np.inf
+    return lo, hi
+
+
 @nb.njit(cache=True)
 def _cone_feasible(origin: np.ndarray, d: np.ndarray, dist: float, A: np.ndarray,
                    b: np.ndarray, reach: np.ndarray, lo_f: int, hi_f: int) -> bool:
@@ -82,19 +105,8 @@ def _cone_feasible(origin: np.ndarray, d: np.ndarray, dist: float, A: np.ndarray
     the cone from a camera ``dist`` away along ``d`` needs there, meet that line? A point
     a fraction t of the way to the camera needs the target scaled by 1 - t: it must satisfy
     A x <= b - t reach, i.e. t (dist A.d + reach) <= b - A.origin, for some t in [0, 1]."""
-    lo, hi = 0.0, 1.0
-    for f in range(lo_f, hi_f):
-        rate = dist * (A[f, 0] * d[0] + A[f, 1] * d[1] + A[f, 2] * d[2]) + reach[f]
-        room = b[f] - (A[f, 0] * origin[0] + A[f, 1] * origin[1] + A[f, 2] * origin[2])
-        if rate > 1e-12:
-            hi = min(hi, room / rate)
-        elif rate < -1e-12:
-            lo = max(lo, room / rate)
-        elif room < 0.0:
-            return False
-        if lo > hi:
-            return False
-    return True
+    lo, hi = _interval(origin, d, dist, A, b, reach, True, lo_f, hi_f, 0.0, 1.0, np.inf)
+    return lo <= hi
 
 
 @nb.njit(cache=True)
@@ -108,24 +120,13 @@ def _misses(origin: np.ndarray, d: np.ndarray, dist: float, centre: np.ndarray,
 
 
 @nb.njit(cache=True)
-def _entry(origin: np.ndarray, d: np.ndarray, A: np.ndarray, b: np.ndarray, lo_f: int,
-           hi_f: int, best: float) -> float:
+def _entry(origin: np.ndarray, d: np.ndarray, A: np.ndarray, b: np.ndarray,
+           reach: np.ndarray, lo_f: int, hi_f: int, best: float) -> float:
     """Distance along the ray from ``origin`` along ``d`` at which it enters the hull
     (rows lo_f:hi_f of A x <= b): 0 if it starts inside, inf if it misses it or enters
     at or beyond ``best``."""
-    enter, leave = 0.0, np.inf
-    for f in range(lo_f, hi_f):
-        rate = A[f, 0] * d[0] + A[f, 1] * d[1] + A[f, 2] * d[2]
-        room = b[f] - (A[f, 0] * origin[0] + A[f, 1] * origin[1] + A[f, 2] * origin[2])
-        if rate > 1e-12:
-            leave = min(leave, room / rate)
-        elif rate < -1e-12:
-            enter = max(enter, room / rate)
-        elif room < 0.0:
-            return np.inf  # parallel to a face, outside it
-        if enter > leave or enter >= best:
-            return np.inf
-    return enter
+    lo, hi = _interval(origin, d, 1.0, A, b, reach, False, lo_f, hi_f, 0.0, np.inf, best)
+    return lo if lo <= hi else np.inf
 
 
 @nb.njit(cache=True)
@@ -136,7 +137,7 @@ def _hull_depth(origin: np.ndarray, d: np.ndarray, A: np.ndarray, b: np.ndarray,
     it, the exact distance for the cone expansion, by bisection above that entry (the
     occluded distances along a ray reach to infinity: a farther camera's cone contains a
     nearer one's)."""
-    enter = _entry(origin, d, A, b, lo_f, hi_f, np.inf)
+    enter = _entry(origin, d, A, b, reach, lo_f, hi_f, np.inf)
     if enter > top:
         return np.inf
     if not cone:
@@ -186,7 +187,7 @@ def _occluded(origin: np.ndarray, offsets: np.ndarray, A: np.ndarray, b: np.ndar
         for h in range(len(start) - 1):
             if _misses(origin, d, dist, centre[h], radius[h]):
                 continue
-            if _entry(origin, d, A, b, start[h], start[h + 1], dist) < dist and (
+            if _entry(origin, d, A, b, reach, start[h], start[h + 1], dist) < dist and (
                     not cone or _cone_feasible(origin, d, dist, A, b, reach, start[h],
                                                start[h + 1])):
                 out[i] = True
