@@ -8,8 +8,8 @@ eq. 5, the point at depth f b / d. Each is rated by the fiducial evaluation func
 (eq. 8), every term scaled to [0, 1] over the candidates:
 
 - certainty f = P / r: P the grid's occupancy at the point (the surface voxel: the
-  largest P within one voxel), r the radius (voxels) out to which the certainty
-  |2 P - 1| of the surrounding shells keeps falling;
+  largest P within one voxel), r the radius (voxels, at least 1) out to which the
+  certainty |2 P - 1| of the surrounding shells keeps falling;
 - visual contrast g = |C| w (eq. 9): C = (I - Ī_w) / Ī_w over square windows of side w,
   w the largest before |C| starts to fall;
 - depth contrast h = H w: H the highest spatial frequency holding 10 % of the peak power
@@ -23,7 +23,7 @@ within ``spacing_px`` of it (the penalty for fiducials close to each other).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -45,15 +45,6 @@ class Candidate:
     contrast: float
     depth_contrast: float
     rating: float = 0.0
-
-
-@dataclass
-class Track:
-    """A fiducial followed from image to image."""
-
-    id: int
-    template: np.ndarray  # gray patch around it in the image it was last found in
-    pixels: list[tuple[float, float]] = field(default_factory=list)
 
 
 def corners(gray: np.ndarray, count: int, min_distance: float = 8.0,
@@ -179,9 +170,10 @@ def certainty(grid: OccupancyGrid, p: np.ndarray, point: np.ndarray) -> float:
     radius = np.rint(np.linalg.norm(idx - centre, axis=1)).astype(int)
     sure = np.abs(2 * block.ravel() - 1)
     profile = [sure[radius == k].mean() for k in range(1, SHELLS + 1) if np.any(radius == k)]
-    r = next((k + 1 for k in range(len(profile) - 1) if profile[k + 1] > profile[k]),
-             len(profile))
-    return P / max(r, 1)
+    r = 1  # shells over which the certainty keeps falling, from the nearest one
+    while r < len(profile) and profile[r] < profile[r - 1] - 1e-6:
+        r += 1
+    return P / r
 
 
 def visual_contrast(gray: np.ndarray, uv: np.ndarray) -> float:

@@ -3,6 +3,7 @@ and the bundle adjustment of stereo keyframes."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -10,12 +11,25 @@ from scipy.spatial.transform import Rotation
 from calibration import to_gray
 from calibration.bundle import Keyframe, refine, triangulate
 from calibration.ekf import StereoCamera
-from calibration.fiducials import Candidate, corners, disparity, pick
+from calibration.fiducials import (
+    Candidate,
+    certainty,
+    corners,
+    depth_contrast,
+    disparity,
+    find_candidates,
+    locate,
+    pick,
+    visual_contrast,
+)
+from mapping import OccupancyGrid, SensorModel, camera_to_world, opencv_pose
 from sim import build_scene, load_scenario
-from sim.render import Renderer, camera_pinhole
+from sim.render import Renderer, camera_pinhole, camera_pose
 
 
-def test_disparity_of_rendered_corners_matches_the_rendered_depth():
+@pytest.fixture(scope="module")
+def stereo_view():
+    """Robot r1's stereo pair and depth at its start pose in the default scene."""
     s = load_scenario()
     scene = build_scene(s)
     data = scene.make_data()
@@ -24,6 +38,26 @@ def test_disparity_of_rendered_corners_matches_the_rendered_depth():
     with Renderer(scene.model, pinhole.width, pinhole.height) as r:
         left, right = r.rgb(data, robot.camera), r.rgb(data, robot.right_camera)
         depth = r.depth(data, robot.camera)
+    return s, pinhole, left, right, depth, opencv_pose(camera_pose(data, robot.camera))
+
+
+@pytest.fixture(scope="module")
+def rendered(stereo_view):
+    """The pair, a grid marking the rendered surfaces occupied, and (u, v, d) -> world."""
+    s, pinhole, left, right, depth, T = stereo_view
+    grid = OccupancyGrid.from_bounds(np.array(s.grid.bounds_min), np.array(s.grid.bounds_max),
+                                     0.05, SensorModel())
+    grid.set_probability(0.01)
+    surface = camera_to_world(T, pinhole.unproject(depth)[np.isfinite(depth)])
+    idx = grid.index(surface)
+    idx = idx[grid.inside(idx)]
+    grid.set_probability(0.99, tuple(idx.T))
+    stereo = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, s.camera.baseline_m)
+    return left, right, grid, lambda z: camera_to_world(T, stereo.point(z))
+
+
+def test_disparity_of_rendered_corners_matches_the_rendered_depth(stereo_view):
+    s, pinhole, left, right, depth, _ = stereo_view
     gl, gr = to_gray(left), to_gray(right)
     errors = []
     for uv in corners(gl, 2000, min_distance=4.0):
@@ -88,3 +122,64 @@ def test_bundle_adjustment_recovers_the_moved_camera():
 
 def triangulate_all(cam: StereoCamera, key: Keyframe) -> np.ndarray:
     return np.array([triangulate(cam, z, key.g01) for _, z in sorted(key.observations.items())])
+
+
+def test_visual_contrast_by_hand():
+    gray = np.full((100, 100), 0.5, dtype=np.float32)
+    assert visual_contrast(gray, np.array([50.0, 50.0])) == 0.0
+    gray[47:54, 47:54] = 0.2  # a dark 7 x 7 square around one bright pixel
+    gray[50, 50] = 1.0
+    # |C| grows for windows 3, 5, 7 (means 0.2889, 0.232, 0.2163) and falls at 9 (0.3284)
+    mean7 = (48 * 0.2 + 1.0) / 49
+    assert visual_contrast(gray, np.array([50.0, 50.0])) == pytest.approx(
+        (1.0 - mean7) / mean7 * 7, rel=1e-5)
+
+
+def _grid(fill: float) -> tuple[OccupancyGrid, np.ndarray]:
+    g = OccupancyGrid.from_bounds(np.zeros(3), np.full(3, 1.0), 0.05, SensorModel())
+    g.set_probability(fill)
+    return g, g.probability()
+
+
+def test_certainty_is_p_over_the_radius_of_falling_certainty():
+    g, p = _grid(0.01)
+    centre = np.array(g.shape) // 2
+    point = g.centers(centre[None])[0]
+    p[tuple(centre)] = 0.99
+    assert certainty(g, p, point) == pytest.approx(0.99)  # all known around: r = 1
+    r = np.rint(np.linalg.norm(np.indices(g.shape).transpose(1, 2, 3, 0) - centre, axis=3))
+    p[:] = np.where(r <= 1, 0.99, np.where(r == 2, 0.7, 0.5))  # known, less so, unknown
+    assert certainty(g, p, point) == pytest.approx(0.99 / 3)
+
+
+def test_depth_contrast_rises_with_finer_structure():
+    g, p = _grid(0.01)
+    point = g.centers((np.array(g.shape) // 2)[None])[0]
+    assert depth_contrast(g, p, point) == 0.0  # nothing but free space
+    p[:, :, : g.shape[2] // 2] = 0.99  # a floor under the point
+    step = depth_contrast(g, p, point)
+    idx = np.indices(g.shape).sum(axis=0)
+    p[:] = np.where(idx % 2 == 0, 0.99, 0.01)  # a voxel checkerboard
+    assert depth_contrast(g, p, point) > step > 0.0
+
+
+def test_locate_finds_a_shifted_patch_to_a_tenth_of_a_pixel():
+    rng = np.random.default_rng(3)
+    image = cv2.GaussianBlur(rng.uniform(0, 1, (120, 160)).astype(np.float32), (0, 0), 1.5)
+    shifted = cv2.warpAffine(image, np.float32([[1, 0, 3.4], [0, 1, -2.2]]), (160, 120),
+                             flags=cv2.INTER_CUBIC)
+    template = image[73:88, 93:108]  # centred on (100, 80)
+    found = locate(shifted, template, np.array([100.0, 80.0]), 8)
+    assert found is not None and found[1] > 0.95
+    assert np.allclose(found[0], [103.4, 77.8], atol=0.1)
+
+
+def test_candidates_of_a_rendered_pair_are_measured_and_rated(rendered):
+    left, right, grid, to_world = rendered
+    found = find_candidates(left, right, grid, to_world)
+    assert len(found) >= 3
+    assert all(c.disparity > 0 and 0.0 <= c.rating <= 3.0 for c in found)
+    for term in ("certainty", "contrast", "depth_contrast"):  # each scaled to [0, 1]
+        values = [getattr(c, term) for c in found]
+        assert max(values) > 0 or all(v == 0 for v in values)
+    assert max(c.rating for c in found) > 1.0
