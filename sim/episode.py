@@ -85,7 +85,7 @@ class Placement:
     robot: Robot
     target: Target | None = None
     commanded: np.ndarray | None = None  # the candidate position (m)
-    commanded_pose: dict[str, list[float]] | None = None  # the camera at the IK solution
+    commanded_pose: np.ndarray | None = None  # the camera at the IK solution (4x4)
     rating: dict[str, float] = field(default_factory=dict)
     ik: IKResult | None = None
     motion: MotionResult | None = None
@@ -96,21 +96,19 @@ class Placement:
     unreachable: list[dict[str, Any]] = field(default_factory=list)  # residuals, first few
 
 
-def pose_dict(data: mujoco.MjData, camera: str) -> dict[str, list[float]]:
-    """World position and quaternion (w, x, y, z) of a named camera's MuJoCo frame."""
+def pose_dict(T: np.ndarray) -> dict[str, list[float]]:
+    """World position and quaternion (w, x, y, z) of a pose (4x4)."""
     quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, data.camera(camera).xmat)
-    return {"position": data.camera(camera).xpos.tolist(), "quat_wxyz": quat.tolist()}
+    mujoco.mju_mat2Quat(quat, T[:3, :3].ravel())
+    return {"position": T[:3, 3].tolist(), "quat_wxyz": quat.tolist()}
 
 
-def pose_error(commanded: dict[str, list[float]], achieved: np.ndarray) -> dict[str, float]:
-    """Position (m) and rotation angle (deg) from a commanded camera pose (``pose_dict``)
-    to the achieved one (4x4, world from MuJoCo camera)."""
-    R = np.zeros(9)
-    mujoco.mju_quat2Mat(R, np.array(commanded["quat_wxyz"]))
-    rel = R.reshape(3, 3).T @ achieved[:3, :3]
+def pose_error(commanded: np.ndarray, achieved: np.ndarray) -> dict[str, float]:
+    """Position (m) and rotation angle (deg) from a commanded camera pose to the achieved
+    one (4x4 each)."""
+    rel = commanded[:3, :3].T @ achieved[:3, :3]
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rel) - 1) / 2))))
-    return {"position_m": float(np.linalg.norm(achieved[:3, 3] - commanded["position"])),
+    return {"position_m": float(np.linalg.norm(achieved[:3, 3] - commanded[:3, 3])),
             "orientation_deg": angle}
 
 
@@ -244,7 +242,7 @@ class Episode:
                 continue
             ik = plan.ik
             result.target, result.commanded, result.ik = target, position, ik
-            result.commanded_pose = pose_dict(belief, robot.camera)
+            result.commanded_pose = camera_pose(belief, robot.camera)
             result.rating = field_.ratings.terms(int(i))
             self.recorder.chosen(robot.name, position, target.position, target.name)
             self.recorder.hulls(robot.name, field_.hulls[target.name])
@@ -274,24 +272,22 @@ class Episode:
                 rgb = renderer.rgb(self.data, robot.camera)
                 depth = renderer.depth(self.data, robot.camera)
                 seg = renderer.segmentation(self.data, robot.camera)
-            self.recorder.camera(robot.name, camera_pose(self.data, robot.camera), pinhole,
-                                 rgb, depth)
+            achieved = camera_pose(self.data, robot.camera)  # the truth, for evaluation
+            self.recorder.camera(robot.name, achieved, pinhole, rgb, depth)
             row: dict[str, Any] = {"name": robot.name, "camera": robot.camera,
-                                   "placed": p.target is not None,
-                                   "pose": pose_dict(self.data, robot.camera)}
-            if p.target is not None and p.ik is not None and p.commanded is not None:
-                achieved = camera_pose(self.data, robot.camera)
-                planned = p.commanded_pose or {}
+                                   "placed": p.target is not None, "pose": pose_dict(achieved)}
+            if (p.target is not None and p.ik is not None and p.commanded is not None
+                    and p.commanded_pose is not None):
                 row.update({
                     "candidate_position": p.commanded.tolist(),
-                    "commanded_pose": planned,
-                    "positioning_error": pose_error(planned, achieved),
+                    "commanded_pose": pose_dict(p.commanded_pose),
+                    "positioning_error": pose_error(p.commanded_pose, achieved),
                     "target": p.target.summary(),
                     "rating": p.rating,
                     "ik": p.ik.summary(),
                     "motion": None if p.motion is None else p.motion.summary(),
                     **find_target(rgb, seg, p.target, self.model.geom(p.target.geom).id,
-                                  camera_pose(self.data, robot.camera), pinhole),
+                                  achieved, pinhole),
                 })
             else:
                 row.update({"seen": False, "pixel": None})
