@@ -12,9 +12,11 @@ camera's path, not just the head's 12 cm — and fixes the last pose from them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
 from scipy.spatial.transform import Rotation
 
 from .ekf import StereoCamera
@@ -44,58 +46,132 @@ def _to_params(g01: np.ndarray) -> np.ndarray:
     return np.concatenate([Rotation.from_matrix(g01[:3, :3]).as_rotvec(), g01[:3, 3]])
 
 
-def _from_params(p: np.ndarray) -> np.ndarray:
-    g = np.eye(4)
-    g[:3, :3] = Rotation.from_rotvec(p[:3]).as_matrix()
-    g[:3, 3] = p[3:6]
-    return g
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices (n, 3, 3) of vectors (n, 3)."""
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
+
+
+def left_jacobian(w: np.ndarray) -> np.ndarray:
+    """SO(3) left Jacobians (n, 3, 3) of rotation vectors (n, 3): R(w + dw) is
+    exp(J dw) R(w) to first order."""
+    theta = np.linalg.norm(w, axis=1)[:, None, None]
+    W = _skew(w)
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5, (1 - np.cos(safe)) / safe ** 2)
+    b = np.where(small, 1 / 6, (safe - np.sin(safe)) / safe ** 3)
+    return np.eye(3) + a * W + b * (W @ W)
+
+
+class BundleProblem:
+    """The least-squares problem: parameters x (the free keyframes' rotation vectors and
+    translations, then the points), whitened residuals (u, v and right u of every
+    observation, over the pixel sigma) and their sparse Jacobian, in closed form."""
+
+    def __init__(self, camera: StereoCamera, keyframes: list[Keyframe], points: np.ndarray,
+                 pixel_sigma: float) -> None:
+        self.camera, self.keyframes, self.sigma = camera, keyframes, pixel_sigma
+        self.free = [k for k, f in enumerate(keyframes) if not f.known]
+        self.n, self.n_pose = len(points), 6 * len(self.free)
+        obs = [(k, i, z) for k, f in enumerate(keyframes) for i, z in f.observations.items()]
+        self.kf_idx = np.array([k for k, _, _ in obs], int)
+        self.pt_idx = np.array([i for _, i, _ in obs], int)
+        self.z = np.array([o[2] for o in obs]).reshape(-1, 3)
+        slot = {k: j for j, k in enumerate(self.free)}
+        self.pose_slot = np.array([slot.get(int(k), -1) for k in self.kf_idx], int)  # -1: known
+        self.known_R = np.array([f.g01[:3, :3] for f in keyframes])
+        self.known_t = np.array([f.g01[:3, 3] for f in keyframes])
+        self.x0 = np.concatenate([*[_to_params(keyframes[k].g01) for k in self.free],
+                                  points.ravel()])
+
+    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rotations (K, 3, 3) and translations (K, 3) of every keyframe; points (n, 3)."""
+        R, t = self.known_R.copy(), self.known_t.copy()
+        if self.free:
+            params = x[:self.n_pose].reshape(-1, 6)
+            R[self.free] = Rotation.from_rotvec(params[:, :3]).as_matrix()
+            t[self.free] = params[:, 3:]
+        return R, t, x[self.n_pose:].reshape(self.n, 3)
+
+    def camera_points(self, x: np.ndarray) -> np.ndarray:
+        R, t, pts = self.unpack(x)
+        return np.einsum("kij,kj->ki", R[self.kf_idx], pts[self.pt_idx]) + t[self.kf_idx]
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        cam, z = self.camera, self.z
+        c = self.camera_points(x)
+        u = cam.fx * c[:, 0] / c[:, 2] + cam.cx
+        v = cam.fy * c[:, 1] / c[:, 2] + cam.cy
+        ur = u - cam.fx * cam.baseline / c[:, 2]
+        return np.concatenate([u - z[:, 0], v - z[:, 1], ur - (z[:, 0] - z[:, 2])]) / self.sigma
+
+    def jacobian(self, x: np.ndarray) -> csr_matrix:
+        fx, fy, b = self.camera.fx, self.camera.fy, self.camera.baseline
+        m, n_pose = len(self.z), self.n_pose
+        R, _, _ = self.unpack(x)
+        c = self.camera_points(x)
+        inv = 1 / c[:, 2]
+        dc = np.zeros((m, 3, 3))  # d(u, v, u_right) / d(camera point)
+        dc[:, 0, 0], dc[:, 0, 2] = fx * inv, -fx * c[:, 0] * inv ** 2
+        dc[:, 1, 1], dc[:, 1, 2] = fy * inv, -fy * c[:, 1] * inv ** 2
+        dc[:, 2, 0], dc[:, 2, 2] = fx * inv, -fx * (c[:, 0] - b) * inv ** 2
+        dc /= self.sigma
+        d_point = dc @ R[self.kf_idx]
+        rows, cols, vals = [], [], []
+        every = np.arange(m)
+        moving = np.flatnonzero(self.pose_slot >= 0)
+        params = x[:n_pose].reshape(-1, 6)[self.pose_slot[moving]]
+        # the camera point R X + t: d/dw = -[R X]x J_left(w), d/dt = I
+        d_rot = dc[moving] @ (-_skew(c[moving] - params[:, 3:]) @ left_jacobian(params[:, :3]))
+        for r in range(3):  # residual blocks: u, v, u_right
+            for q in range(3):
+                rows += [r * m + every, r * m + moving, r * m + moving]
+                cols += [n_pose + 3 * self.pt_idx + q, 6 * self.pose_slot[moving] + q,
+                         6 * self.pose_slot[moving] + 3 + q]
+                vals += [d_point[:, r, q], d_rot[:, r, q], dc[moving, r, q]]
+        return csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(3 * m, n_pose + 3 * self.n))
 
 
 def refine(camera: StereoCamera, keyframes: list[Keyframe], points: np.ndarray,
            pixel_sigma: float = 0.3) -> BundleResult:
     """Refine the unknown keyframes' poses and the fiducials (initial ``points``)."""
-    free = [k for k, f in enumerate(keyframes) if not f.known]
-    n = len(points)
-    obs = [(k, i, z) for k, f in enumerate(keyframes) for i, z in f.observations.items()]
-    kf_idx = np.array([k for k, _, _ in obs])
-    pt_idx = np.array([i for _, i, _ in obs])
-    z = np.array([o[2] for o in obs])
-    slot = {k: j for j, k in enumerate(free)}
-
-    def unpack(x: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-        poses = [f.g01 if f.known else _from_params(x[6 * slot[k]:6 * slot[k] + 6])
-                 for k, f in enumerate(keyframes)]
-        return poses, x[6 * len(free):].reshape(n, 3)
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        poses, pts = unpack(x)
-        R = np.array([p[:3, :3] for p in poses])[kf_idx]
-        t = np.array([p[:3, 3] for p in poses])[kf_idx]
-        c = np.einsum("kij,kj->ki", R, pts[pt_idx]) + t
-        u = camera.fx * c[:, 0] / c[:, 2] + camera.cx
-        v = camera.fy * c[:, 1] / c[:, 2] + camera.cy
-        ur = u - camera.fx * camera.baseline / c[:, 2]
-        return np.concatenate([u - z[:, 0], v - z[:, 1], ur - (z[:, 0] - z[:, 2])]) / pixel_sigma
-
-    x0 = np.concatenate([*[_to_params(keyframes[k].g01) for k in free], points.ravel()])
-    fit = least_squares(residuals, x0, loss="soft_l1", f_scale=3.0, x_scale="jac",
-                        max_nfev=200)
-    poses, pts = unpack(fit.x)
-    r = residuals(fit.x) * pixel_sigma
-    covs = []
-    try:
-        info = np.linalg.pinv(fit.jac.T @ fit.jac)
-    except np.linalg.LinAlgError:
-        info = np.full((len(fit.x), len(fit.x)), np.nan)
-    for k, f in enumerate(keyframes):
-        if f.known:
-            covs.append(np.zeros((6, 6)))
-            continue
-        j = 6 * slot[k]
-        # the covariance of the rotation vector and translation of g01: close enough to
-        # the camera-frame perturbation the EKF takes for the small angles here
-        covs.append(info[j:j + 6, j:j + 6])
+    problem = BundleProblem(camera, keyframes, points, pixel_sigma)
+    fit = least_squares(problem.residuals, problem.x0, jac=problem.jacobian, loss="soft_l1",
+                        f_scale=3.0, x_scale="jac", max_nfev=100, tr_solver="lsmr")
+    R, t, pts = problem.unpack(fit.x)
+    poses = [np.block([[R[k], t[k][:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])
+             for k in range(len(keyframes))]
+    r = problem.residuals(fit.x) * pixel_sigma
+    cov = _pose_covariance(fit.jac, problem.n_pose)
+    block = {k: slice(6 * j, 6 * j + 6) for j, k in enumerate(problem.free)}
+    covs = [np.zeros((6, 6)) if f.known else cov[block[k], block[k]]
+            for k, f in enumerate(keyframes)]
     return BundleResult(poses, pts, covs, float(np.sqrt(np.mean(r ** 2))), float(fit.cost))
+
+
+def _pose_covariance(jac: Any, n_pose: int) -> np.ndarray:
+    """The poses' marginal covariance (n_pose x n_pose; rotation vector and translation
+    of each g01) from the Jacobian of the whitened residuals: the inverse of the Schur
+    complement of the fiducials' 3x3 blocks in JᵀJ."""
+    H = (jac.T @ jac).tocsr() if hasattr(jac, "tocsr") else np.asarray(jac.T @ jac)
+    Hpp = _dense(H[:n_pose, :n_pose])
+    Hpx = _dense(H[:n_pose, n_pose:])
+    n_points = (H.shape[0] - n_pose) // 3
+    S = Hpp.copy()
+    for i in range(n_points):
+        sl = slice(n_pose + 3 * i, n_pose + 3 * i + 3)
+        block = _dense(H[sl, sl])
+        cross = Hpx[:, 3 * i:3 * i + 3]
+        S -= cross @ np.linalg.pinv(block) @ cross.T
+    return np.asarray(np.linalg.pinv(S))
+
+
+def _dense(m: Any) -> np.ndarray:
+    return np.asarray(m.toarray() if hasattr(m, "toarray") else m, dtype=float)
 
 
 def triangulate(camera: StereoCamera, z: np.ndarray, g01: np.ndarray) -> np.ndarray:

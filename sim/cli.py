@@ -59,10 +59,13 @@ def run(args: argparse.Namespace) -> int:
     _log(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
          f"{scenario.robots.count} robot(s)")
     try:
-        summary, xml = episode.run(recorder)
+        summary, xml, files = episode.run(recorder)
     finally:
         recorder.close()
     (out / "scene.xml").write_text(xml)
+    for path, content in files.items():
+        (out / path).parent.mkdir(parents=True, exist_ok=True)
+        (out / path).write_bytes(content)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     for robot in summary["robots"]:
         target = robot.get("target", {}).get("name", "-")

@@ -49,6 +49,7 @@ from placement import (
 )
 
 from .collision import blocked_rays, robot_points
+from .correction import Correction, PoseCorrector
 from .exploration import Exploration
 from .ik import IKResult
 from .motion import ErrorModel, MotionResult, Mover
@@ -58,6 +59,7 @@ from .render import Renderer, camera_pinhole, camera_pose
 from .scenario import Scenario
 from .scene import Robot, Scene, Target, build_scene
 from .sensing import DepthSensor
+from .target_frame import Sighting, common_frame, sight
 
 VERSION = "0.1.0"
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
@@ -89,6 +91,7 @@ class Placement:
     rating: dict[str, float] = field(default_factory=dict)
     ik: IKResult | None = None
     motion: MotionResult | None = None
+    correction: Correction | None = None
     strategy: str = "exhaustive"
     evaluated: int = 0  # candidates the search rated
     candidates_tried: int = 0  # of them, tried with IK
@@ -146,6 +149,22 @@ def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: i
             "target_pixels": visible_px, "expected_target_pixels": round(full_area, 1)}
 
 
+def correction_summary(c: Correction | None, commanded: np.ndarray,
+                       achieved: np.ndarray) -> dict[str, Any]:
+    """The pose correction's outcome (``estimated_pose`` and ``correction``), with its
+    error against the simulator's truth before (the commanded pose) and after."""
+    if c is None:
+        return {}
+    out = {**c.summary(), "error_before": pose_error(commanded, achieved)}
+    if c.pose is not None:
+        out["error_after"] = pose_error(c.pose, achieved)
+    if c.bundle_pose is not None:
+        out["bundle_error"] = pose_error(c.bundle_pose, achieved)
+    out["other_estimators_error"] = {m: pose_error(T, achieved) for m, T in c.others.items()}
+    estimated = {} if c.pose is None else {"estimated_pose": pose_dict(c.pose)}
+    return {**estimated, "correction": out}
+
+
 class Episode:
     """Runs the stages of one episode on one scenario."""
 
@@ -164,6 +183,8 @@ class Episode:
         self.mover = Mover(self.model, self.data, self.scene.robots, scenario.motion)
         self.grid = new_grid(scenario)
         self.recorder = Recorder(None, "")
+        self.corrector: PoseCorrector | None = None  # with a renderer, in run()
+        self.sightings: list[Sighting] = []  # of the targets, by the placed cameras
         self.pinhole = camera_pinhole(self.model, self.scene.robots[0].camera)
         self.step = 0
         cam = scenario.camera
@@ -246,30 +267,54 @@ class Episode:
             result.rating = field_.ratings.terms(int(i))
             self.recorder.chosen(robot.name, position, target.position, target.name)
             self.recorder.hulls(robot.name, field_.hulls[target.name])
-            with self.timer("motion"):
-                result.motion = self.mover.follow(robot, ik.path, self.errors.draw(robot),
-                                                  self._recorded(robot))
+            result.motion, result.correction = self._move(robot, ik.path)
             return result
         return result
 
-    def _recorded(self, robot: Robot) -> Callable[[float, np.ndarray], None]:
-        """Logs the robot as it moves, at a simulated time (s)."""
+    def _move(self, robot: Robot, path: np.ndarray) -> tuple[MotionResult, Correction | None]:
+        """Follow the path in the world, logging the robot and, with correction on,
+        taking the frames the camera's pose is corrected from at the end."""
         links = sorted(robot.body_ids)
+        corrector = self.corrector
+        frames: Callable[[float, np.ndarray], None] | None = None
+        if corrector is not None:
+            with self.timer("correction"):
+                corrector.begin(robot, path[0])
+            frames = corrector.on_sample(robot)
 
-        def log(t: float, commanded: np.ndarray) -> None:
+        framing = 0.0  # wall time (s) spent on frames during the move
+
+        def on_sample(t: float, measured: np.ndarray) -> None:
+            nonlocal framing
             self.recorder.motion(robot.name, t, self.data.xpos[links],
                                  camera_pose(self.data, robot.camera))
-        return log
+            if frames is not None:
+                start = time.perf_counter()
+                frames(t, measured)
+                framing += time.perf_counter() - start
+
+        with self.timer("motion"):
+            motion = self.mover.follow(robot, path, self.errors.draw(robot), on_sample)
+        self.timer.totals["motion"] -= framing
+        self.timer.totals["correction"] += framing
+        if corrector is None:
+            return motion, None
+        with self.timer("correction"):
+            correction = corrector.finish(robot)
+        self.recorder.fiducials(robot.name, correction)
+        return motion, correction
 
     def look(self, placements: list[Placement], renderer: Renderer) -> list[dict[str, Any]]:
         """Stage 3: render from the reached poses and find each target in the image."""
         pinhole = self.pinhole
         rows = []
+        self.sightings = []
         self._tick()
         for p in placements:
             robot = p.robot
             with self.timer("render"):
                 rgb = renderer.rgb(self.data, robot.camera)
+                right = renderer.rgb(self.data, robot.right_camera)
                 depth = renderer.depth(self.data, robot.camera)
                 seg = renderer.segmentation(self.data, robot.camera)
             achieved = camera_pose(self.data, robot.camera)  # the truth, for evaluation
@@ -286,6 +331,8 @@ class Episode:
                     "rating": p.rating,
                     "ik": p.ik.summary(),
                     "motion": None if p.motion is None else p.motion.summary(),
+                    **correction_summary(p.correction, p.commanded_pose, achieved),
+                    "sightings": self._sight(robot, rgb, right, p),
                     **find_target(rgb, seg, p.target, self.model.geom(p.target.geom).id,
                                   achieved, pinhole),
                 })
@@ -298,8 +345,28 @@ class Episode:
             rows.append(row)
         return rows
 
-    def run(self, recorder: Recorder | None = None) -> tuple[dict[str, Any], str]:
-        """All stages; returns ``summary.json``'s content and the scene's MJCF."""
+    def _sight(self, robot: Robot, left: np.ndarray, right: np.ndarray, p: Placement
+               ) -> list[dict[str, Any]]:
+        """Every target the camera finds in stereo, placed through its believed pose (the
+        corrected one, else the commanded one)."""
+        believed = p.commanded_pose
+        if p.correction is not None and p.correction.pose is not None:
+            believed = p.correction.pose
+        rows: list[dict[str, Any]] = []
+        if believed is None:
+            return rows
+        for t in self.scene.targets:
+            found = sight(robot.name, left, right, t, believed, self.pinhole,
+                          self.s.camera.baseline_m)
+            if found is not None:
+                self.sightings.append(found)
+                rows.append(found.summary(t.position))
+        return rows
+
+    def run(self, recorder: Recorder | None = None
+            ) -> tuple[dict[str, Any], str, dict[str, bytes]]:
+        """All stages; returns ``summary.json``'s content, the scene's MJCF and the files
+        it reads (by path relative to it)."""
         t0 = time.perf_counter()
         if recorder is not None:
             self.recorder = recorder
@@ -309,6 +376,10 @@ class Episode:
         with Renderer(self.model, self.pinhole.width, self.pinhole.height) as renderer:
             mapping = self.map(renderer)
             self._hold()
+            if self.s.correction.enabled:
+                self.corrector = PoseCorrector(self.scene, self.belief, self.data, renderer,
+                                               self.pinhole, self.s.camera.baseline_m,
+                                               self.grid, self.s.correction)
             placements: list[Placement] = []
             taken: list[np.ndarray] = []
             for robot in self.scene.robots:
@@ -318,14 +389,15 @@ class Episode:
                 if p.commanded is not None:
                     taken.append(p.commanded)
             robots = self.look(placements, renderer)
-        xml = self.scene.to_xml(self.data.qpos.copy(), self.mover.mount_overrides())
+        xml, files = self.scene.to_xml(self.data.qpos.copy(), self.mover.mount_overrides())
         self.timer.totals["total"] = time.perf_counter() - t0
         summary = {
             "version": VERSION, "scenario": self.s.name, "seed": self.s.seed,
             "robots": robots, "mapping": mapping,
+            "target_frame": common_frame(self.sightings, self.scene.targets),
             "timings_s": {k: round(v, 4) for k, v in self.timer.totals.items()},
         }
-        return summary, xml
+        return summary, xml, files
 
     # ------------------------------------------------------------ helpers
 

@@ -147,8 +147,9 @@ class Mover:
         minimum-jerk profile (at rest at both ends; 15/8 as long, the same peak speed),
         with velocity feed-forward. The move's error builds up along the same profile
         (none at the start, where the pose was known; all of it at the end).
-        ``on_sample(t, commanded)`` is called every ``sample_every_s`` of simulated time
-        with the commanded joints then (what the planner knows)."""
+        ``on_sample(t, measured)`` is called every ``sample_every_s`` of simulated time
+        with the joints as the robot's encoders and odometry read them: the true joints
+        (servo lag included) less the move's errors, which they cannot see."""
         m, d, cfg = self.world, self.data, self.cfg
         act = self.actuators[robot.name]
         knots = timed_path(path, cfg.speed_scale)
@@ -197,5 +198,6 @@ class Mover:
             if steps % sample == 0 or k == n - 1:
                 samples.append((float(d.time), d.qpos[robot.qpos_adr].copy()))
                 if on_sample is not None:
-                    on_sample(float(d.time), commanded[k])
+                    on_sample(float(d.time),
+                              d.qpos[robot.qpos_adr] - progress[k] * error.setpoints)
         return MotionResult(float(d.time - t0), steps, closest, contacts, samples)

@@ -10,11 +10,16 @@ w.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rerun as rr
+from scipy.spatial.transform import Rotation
 
 from mapping import OccupancyGrid, Pinhole, opencv_pose
+
+if TYPE_CHECKING:
+    from .correction import Correction
 
 
 def _colormap(values: np.ndarray) -> np.ndarray:
@@ -125,6 +130,37 @@ class Recorder:
         T = opencv_pose(T_world_mjcam)
         self.rec.log(f"world/{robot}/camera", rr.Transform3D(translation=T[:3, 3],
                                                              mat3x3=T[:3, :3]))
+
+    def fiducials(self, robot: str, correction: Correction) -> None:
+        """The fiducials a camera's pose was corrected from: 3-sigma covariance ellipsoids
+        in the world, their tracks through the move over the camera's last image, and
+        the corrected camera pose."""
+        if self.rec is None or not correction.used:
+            return
+        centres, halves, quats = [], [], []
+        for f in correction.used:
+            w, V = np.linalg.eigh(f.covariance)
+            if np.linalg.det(V) < 0:
+                V[:, 0] = -V[:, 0]
+            centres.append(f.position)
+            halves.append(3 * np.sqrt(np.maximum(w, 0.0)))
+            quats.append(Rotation.from_matrix(V).as_quat())  # x, y, z, w
+        self.rec.log(f"world/{robot}/fiducials",
+                     rr.Ellipsoids3D(centers=centres, half_sizes=halves, quaternions=quats,
+                                     colors=[240, 80, 200]))
+        self.rec.log(f"world/{robot}/camera/rgb/fiducials",
+                     rr.Points2D([f.pixel for f in correction.used], radii=3.0,
+                                 colors=[240, 80, 200]))
+        self.rec.log(f"world/{robot}/camera/rgb/fiducial_tracks",
+                     rr.LineStrips2D([np.array(f.track) for f in correction.used],
+                                     colors=[240, 80, 200]))
+        if correction.pose is not None:
+            T = opencv_pose(correction.pose)
+            self.rec.log(f"world/{robot}/corrected_camera",
+                         rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+            self.rec.log(f"world/{robot}/corrected_camera/axes",
+                         rr.Arrows3D(vectors=0.1 * np.eye(3), colors=[[255, 0, 0], [0, 255, 0],
+                                                                      [0, 0, 255]]))
 
     def chosen(self, robot: str, position: np.ndarray, target: np.ndarray, label: str) -> None:
         if self.rec is not None:

@@ -227,6 +227,22 @@ class MotionConfig:
 
 
 @dataclass(frozen=True)
+class CorrectionConfig:
+    """Correcting each camera's pose from natural fiducials after it moves (sec. 2.4):
+    stereo frames are taken along the move, the fiducials tracked through them, and the
+    final pose estimated from the best-rated ones (eq. 8) by ``estimator``."""
+
+    enabled: bool = False
+    estimator: Literal["linear", "kabsch", "sqpnp"] = "sqpnp"
+    fiducials: int = _check(lambda v: 4 <= v <= 500, "an integer 4 to 500", 24)  # picked
+    frame_every_deg: float = _positive(3.0)  # a frame when the commanded camera turned
+    frame_every_m: float = _positive(0.03)  # ... or moved this much since the last
+    features: int = _check(lambda v: 50 <= v <= 5000, "an integer 50 to 5000", 800)
+    search_px: float = _positive(30.0)  # around a fiducial's predicted pixel
+    pixel_sigma: float = _positive(0.3)  # of a keypoint's position (px)
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str = "default"
     seed: int = _check(lambda v: v >= 0, "an integer >= 0", 0)
@@ -240,6 +256,7 @@ class Scenario:
     rating: RatingConfig = field(default_factory=RatingConfig)
     search: SearchConfig = field(default_factory=SearchConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
+    correction: CorrectionConfig = field(default_factory=CorrectionConfig)
     source: str = "<defaults>"  # the file it was read from
 
     def sensor(self) -> tuple[float, float, float, float]:

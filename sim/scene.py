@@ -12,6 +12,7 @@ import numpy as np
 from placement import circle_in_plane
 
 from .scenario import Scenario, ScenarioError
+from .textures import as_files, link_files, paint
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 ROBOT_XML = MODELS_DIR / "camera_robot.xml"
@@ -99,6 +100,7 @@ class Scene:
     robots: tuple[Robot, ...]
     targets: tuple[Target, ...]
     start_qpos: np.ndarray
+    textures: dict[str, np.ndarray]  # painted (sim/textures.py), by name
 
     def robot_geoms(self) -> np.ndarray:
         """Bool per geom id: does it belong to a robot?"""
@@ -126,10 +128,12 @@ class Scene:
         return qpos[self.model.jnt_qposadr[self.model.actuator_trnid[:, 0]]]
 
     def to_xml(self, final_qpos: np.ndarray,
-               bodies: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> str:
-        """Self-contained MJCF of the scene with keyframes ``start`` and ``final``;
-        ``bodies`` overrides named bodies' (pos, quat) relative to their parents (the
-        world as it ended, e.g. the arms' tilted mounts)."""
+               bodies: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
+               ) -> tuple[str, dict[str, bytes]]:
+        """MJCF of the scene with keyframes ``start`` and ``final``, and the files it
+        reads (painted textures, by path relative to it); ``bodies`` overrides named
+        bodies' (pos, quat) relative to their parents (the world as it ended, e.g. the
+        arms' tilted mounts)."""
         for name, (pos, quat) in (bodies or {}).items():
             body = self.spec.body(name)
             body.pos, body.quat = list(pos), list(quat)
@@ -141,8 +145,10 @@ class Scene:
             key.ctrl = self.ctrl_for(qpos).tolist()
             key.mpos = self.model.body_pos[self.model.body_mocapid >= 0].ravel().tolist()
             key.mquat = self.model.body_quat[self.model.body_mocapid >= 0].ravel().tolist()
-        self.spec.compile()  # to_xml needs a compiled spec; self.model stays as it was
-        return str(self.spec.to_xml())
+        with as_files(self.spec, self.textures):
+            self.spec.compile()  # to_xml needs a compiled spec; self.model stays as it was
+            xml = str(self.spec.to_xml())
+        return link_files(xml, self.textures)
 
 
 def _world(spec: mujoco.MjSpec, s: Scenario) -> None:
@@ -161,10 +167,10 @@ def _world(spec: mujoco.MjSpec, s: Scenario) -> None:
                      builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
                      rgb1=[0.6, 0.75, 0.9], rgb2=[0.1, 0.15, 0.25], width=64, height=64)
     spec.add_texture(name="floor", type=mujoco.mjtTexture.mjTEXTURE_2D,
-                     builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
-                     rgb1=[0.3, 0.32, 0.35], rgb2=[0.24, 0.26, 0.28], width=256, height=256,
-                     mark=mujoco.mjtMark.mjMARK_EDGE, markrgb=[0.45, 0.45, 0.45])
-    spec.add_material(name="floor", textures=["", "floor"], texrepeat=[8, 8], reflectance=0.0)
+                     builtin=mujoco.mjtBuiltin.mjBUILTIN_FLAT, mark=mujoco.mjtMark.mjMARK_RANDOM,
+                     rgb1=[0.34, 0.35, 0.37], markrgb=[0.2, 0.21, 0.23], width=8, height=8)
+    spec.add_material(name="floor", textures=["", "floor"], texuniform=True,
+                      texrepeat=[0.5, 0.5], reflectance=0.0)
     world = spec.worldbody
     world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[6, 6, 0.05],
                    material="floor")
@@ -256,6 +262,7 @@ def build_scene(s: Scenario) -> Scene:
     _panel(spec, s)
     _obstacles(spec, s)
     start = _robots(spec, s)
+    textures = paint(spec)
     model = spec.compile()
     robots = []
     for i in range(s.robots.count):
@@ -272,7 +279,7 @@ def build_scene(s: Scenario) -> Scene:
     qpos = model.qpos0.copy()
     for robot, i in zip(robots, range(len(robots)), strict=True):
         qpos[robot.qpos_adr] = start[9 * i: 9 * i + 9]
-    return Scene(s, spec, model, tuple(robots), targets, qpos)
+    return Scene(s, spec, model, tuple(robots), targets, qpos, textures)
 
 
 def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:

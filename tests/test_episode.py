@@ -149,7 +149,7 @@ def _without_times(summary):
 
 def test_same_seed_same_summary(default_run):
     _, summary = default_run
-    again, _ = Episode(load_scenario()).run()
+    again, _, _ = Episode(load_scenario()).run()
     assert _without_times(json.loads(json.dumps(again))) == _without_times(summary)
 
 

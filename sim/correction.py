@@ -1,0 +1,277 @@
+"""Correcting a camera's pose from natural fiducials after its robot moved (sec. 2.4).
+
+Along the move, whenever the camera has turned ``frame_every_deg`` or moved
+``frame_every_m`` since the last frame (by the joints as the robot measures them), the
+head takes a stereo frame; the fiducials are tracked through the frames
+(calibration/tracking.py), starting from the pose before the move, which is known. Each
+frame's pose is predicted from the last located one moved as the measured joints say;
+what the encoders and odometry cannot see (their offsets, wheel slip, the mount's tilt)
+changes little between frames. At the goal, once the arm has settled, a last frame is taken and
+the frames are bundle-adjusted. The fiducials the last frame sees are then estimated as
+the paper does: an EKF each over its measurements in the earlier frames, the frames'
+pose uncertainty folded into the measurement noise (eq. 10-12); rated by eq. 8 and
+picked apart from each other; and the camera's pose estimated from them by the
+scenario's estimator (eq. 5-6, Kabsch or SQPnP), with its fallbacks.
+
+Only images, the measured joints and the map are used: never the simulator's truth.
+The robots' own bodies are masked out of the images (they know their joint states).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from calibration.ekf import FiducialFilter, StereoCamera
+from calibration.fiducials import Candidate, certainty, depth_contrast, pick, rate, visual_contrast
+from calibration.pose import (
+    METHODS,
+    DegenerateGeometryError,
+    PoseEstimate,
+    estimate_pose,
+    invert,
+)
+from calibration.targets import to_gray
+from calibration.tracking import (
+    FeatureFinder,
+    FiducialTracker,
+    Frame,
+    StereoFeatures,
+    TrackerSettings,
+)
+from mapping import MUJOCO_TO_OPENCV, OccupancyGrid, Pinhole, opencv_pose
+
+from .render import Renderer, camera_pose
+from .scenario import CorrectionConfig
+from .scene import Robot, Scene
+
+
+@dataclass(frozen=True)
+class UsedFiducial:
+    """A fiducial the final pose was estimated from."""
+
+    position: np.ndarray  # world (m), the EKF's estimate
+    covariance: np.ndarray  # 3x3 (m^2)
+    pixel: np.ndarray  # (u, v) in the final left image
+    disparity: float  # pixels
+    rating: float  # eq. 8
+    track: list[tuple[float, float]]  # its left pixels through the move
+
+
+@dataclass
+class Correction:
+    """The outcome for one robot's move. ``pose`` is the corrected camera pose (4x4,
+    MuJoCo camera convention), None if it could not be estimated (``reason`` says why)."""
+
+    pose: np.ndarray | None = None
+    estimate: PoseEstimate | None = None
+    others: dict[str, np.ndarray] = field(default_factory=dict)  # the other estimators' poses
+    bundle_pose: np.ndarray | None = None  # the bundle adjustment's last pose (MuJoCo)
+    pose_sd: tuple[float, float] | None = None  # bundle: position (m), rotation (deg)
+    frames: int = 0
+    located: int = 0
+    fiducials_tracked: int = 0
+    bundle_rms_px: float | None = None
+    used: list[UsedFiducial] = field(default_factory=list)
+    reason: str = ""
+
+    def summary(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"frames": self.frames, "frames_located": self.located,
+                               "fiducials_tracked": self.fiducials_tracked}
+        if self.reason:
+            out["failed"] = self.reason
+        if self.estimate is not None:
+            out.update({"estimator": self.estimate.method, "fiducials": self.estimate.count,
+                        "reprojection_rms_px": round(self.estimate.rms_px, 4)})
+            if self.estimate.note:
+                out["note"] = self.estimate.note
+        if self.bundle_rms_px is not None:
+            out["bundle_rms_px"] = round(self.bundle_rms_px, 4)
+        if self.pose_sd is not None:
+            out["bundle_sd"] = {"position_m": round(self.pose_sd[0], 6),
+                                "orientation_deg": round(self.pose_sd[1], 5)}
+        out["used"] = [{"position": f.position.round(5).tolist(),
+                        "sd_m": round(float(np.sqrt(np.trace(f.covariance))), 6),
+                        "pixel": f.pixel.round(2).tolist(),
+                        "disparity_px": round(f.disparity, 3),
+                        "rating": round(f.rating, 4), "track_length": len(f.track)}
+                       for f in self.used]
+        return out
+
+
+def mujoco_pose(T_cv: np.ndarray) -> np.ndarray:
+    """The MuJoCo camera pose of an OpenCV-convention one (the flip is its own inverse)."""
+    T = np.array(T_cv, copy=True)
+    T[:3, :3] = T[:3, :3] @ MUJOCO_TO_OPENCV
+    return T
+
+
+def turned_deg(A: np.ndarray, B: np.ndarray) -> float:
+    """Angle (deg) between the rotations of two poses (4x4)."""
+    rel = A[:3, :3].T @ B[:3, :3]
+    return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rel) - 1) / 2))))
+
+
+class PoseCorrector:
+    """Takes the frames of each move and corrects the camera's pose at its end."""
+
+    def __init__(self, scene: Scene, belief: mujoco.MjData, world: mujoco.MjData,
+                 renderer: Renderer, pinhole: Pinhole, baseline_m: float,
+                 grid: OccupancyGrid, config: CorrectionConfig) -> None:
+        self.scene, self.belief, self.world = scene, belief, world
+        self.renderer, self.pinhole, self.grid, self.cfg = renderer, pinhole, grid, config
+        self.camera = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, baseline_m)
+        self.settings = TrackerSettings(features=config.features, search_px=config.search_px,
+                                        pixel_sigma=config.pixel_sigma)
+        self.finder = FeatureFinder(self.settings)
+        self.robot_geoms = scene.robot_geoms()
+        self._scratch = scene.make_data()
+        self._tracker: FiducialTracker | None = None
+        self._last_left = np.zeros((pinhole.height, pinhole.width, 3), np.uint8)
+        self._last_measured = np.eye(4)  # the measured camera pose at the last frame
+        self._joints = np.zeros(0)  # the latest measured joints
+        self._last_located = np.eye(4)  # g01 of the last located frame ...
+        self._located_measured = np.eye(4)  # ... and the measured camera pose then
+
+    # ------------------------------------------------------------ along the move
+
+    def nominal_pose(self, robot: Robot, joints: np.ndarray) -> np.ndarray:
+        """The camera pose (OpenCV convention) of the nominal model at ``joints``."""
+        d = self._scratch
+        d.qpos[:] = self.belief.qpos
+        d.qpos[robot.qpos_adr] = joints
+        mujoco.mj_kinematics(self.scene.model, d)
+        mujoco.mj_camlight(self.scene.model, d)
+        return opencv_pose(camera_pose(d, robot.camera))
+
+    def begin(self, robot: Robot, start_joints: np.ndarray) -> None:
+        """The first frame, at the pose before the move (known: no error yet)."""
+        self._tracker = FiducialTracker(self.camera, self.settings)
+        T = self.nominal_pose(robot, start_joints)
+        frame = self._tracker.start(self._look(robot), invert(T))
+        self._last_measured = self._located_measured = T
+        self._last_located = frame.g01
+        self._joints = np.array(start_joints, copy=True)
+
+    def on_sample(self, robot: Robot) -> Callable[[float, np.ndarray], None]:
+        """A callback for the mover, given the measured joints: a frame whenever the
+        camera has moved enough since the last one."""
+        cfg = self.cfg
+
+        def sample(t: float, measured: np.ndarray) -> None:
+            self._joints = np.array(measured, copy=True)
+            T = self.nominal_pose(robot, measured)
+            last = self._last_measured
+            if (turned_deg(last, T) >= cfg.frame_every_deg
+                    or np.linalg.norm(T[:3, 3] - last[:3, 3]) >= cfg.frame_every_m):
+                self._frame(robot, T)
+        return sample
+
+    def _frame(self, robot: Robot, T_measured: np.ndarray) -> bool:
+        """Takes and tracks a frame; whether it was located."""
+        assert self._tracker is not None, "begin() first"
+        # the last located pose, moved as the joints say since
+        motion = invert(self._located_measured) @ T_measured
+        predicted = invert(invert(self._last_located) @ motion)
+        frame = self._tracker.add(self._look(robot), predicted)
+        self._last_measured = T_measured
+        if frame.located:
+            self._last_located, self._located_measured = frame.g01, T_measured
+        return frame.located
+
+    def _look(self, robot: Robot) -> StereoFeatures:
+        r, d = self.renderer, self.world
+        left, right = r.rgb(d, robot.camera), r.rgb(d, robot.right_camera)
+        self._last_left = left
+        # a right keypoint on a robot can only pair with a left one there, already out
+        return self.finder.stereo(left, right, self._own(robot.camera))
+
+    def _own(self, camera: str) -> np.ndarray:
+        seen = self.renderer.segmentation(self.world, camera)
+        return (seen >= 0) & self.robot_geoms[np.maximum(seen, 0)]
+
+    # ------------------------------------------------------------ at the goal
+
+    def finish(self, robot: Robot) -> Correction:
+        """The last frame, at the goal after settling; the corrected pose from it."""
+        tracker = self._tracker
+        assert tracker is not None, "begin() first"
+        out = Correction()
+        located = self._frame(robot, self.nominal_pose(robot, self._joints))
+        self._tracker = None
+        out.frames = len(tracker.frames)
+        out.located = sum(f.located for f in tracker.frames)
+        out.fiducials_tracked = len(tracker.fiducials)
+        if not located:
+            out.reason = "too few fiducials found again in the final frame"
+            return out
+        bundle, frames, kept = tracker.solve()
+        out.bundle_rms_px = bundle.rms_px
+        out.bundle_pose = mujoco_pose(invert(bundle.poses[-1]))
+        cov = bundle.pose_cov[-1]
+        out.pose_sd = (float(np.sqrt(np.trace(cov[3:, 3:]))),
+                       math.degrees(float(np.sqrt(np.trace(cov[:3, :3])))))
+        candidates, filters, ids = self._rated(frames, bundle.poses, bundle.pose_cov, kept)
+        chosen = pick(candidates, self.cfg.fiducials)
+        if not chosen:
+            out.reason = "no fiducial of the final frame was seen before"
+            return out
+        index = [next(k for k, c in enumerate(candidates) if c is pick_) for pick_ in chosen]
+        fids = [filters[k] for k in index]
+        zs = np.array([frames[-1].observations[ids[k]] for k in index])
+        world = np.array([f.x for f in fids])
+        cameras = np.array([self.camera.point(z) for z in zs])
+        try:
+            out.estimate = estimate_pose(world, cameras, zs[:, :2], tracker.K, self.cfg.estimator)
+        except DegenerateGeometryError as exc:
+            out.reason = str(exc)
+            return out
+        out.pose = mujoco_pose(out.estimate.pose)
+        for method in METHODS:  # the same fiducials by every estimator, for comparison
+            if method != out.estimate.method:
+                try:
+                    other = estimate_pose(world, cameras, zs[:, :2], tracker.K, method)
+                except DegenerateGeometryError:
+                    continue
+                if other.method == method:
+                    out.others[method] = mujoco_pose(other.pose)
+        out.used = [UsedFiducial(f.x, f.covariance, z[:2], float(z[2]), c.rating,
+                                 tracker.fiducials.tracks[ids[k]])
+                    for f, z, c, k in zip(fids, zs, chosen, index, strict=True)]
+        return out
+
+    def _rated(self, frames: list[Frame], poses: list[np.ndarray], pose_cov: list[np.ndarray],
+               kept: np.ndarray) -> tuple[list[Candidate], list[FiducialFilter], list[int]]:
+        """The final frame's fiducials seen before: each an EKF over its earlier
+        measurements (eq. 10-12), rated by eq. 8 at its place in the final image."""
+        cfg = self.cfg
+        final = frames[-1]
+        known = set(int(i) for i in kept)
+        p = self.grid.probability()
+        gray = to_gray(self._last_left)
+        candidates, filters, ids = [], [], []
+        for i, z in final.observations.items():
+            if i not in known:
+                continue
+            earlier = [(k, f.observations[i]) for k, f in enumerate(frames[:-1])
+                       if i in f.observations]
+            if not earlier:
+                continue
+            k0, z0 = earlier[0]
+            ekf = FiducialFilter(self.camera, z0, poses[k0], cfg.pixel_sigma,
+                                 math.sqrt(2) * cfg.pixel_sigma, pose_cov[k0])
+            for k, zk in earlier[1:]:
+                ekf.update(zk, poses[k], pose_cov[k])
+            x = ekf.x
+            candidates.append(Candidate(z[:2], float(z[2]), certainty(self.grid, p, x),
+                                        visual_contrast(gray, z[:2]),
+                                        depth_contrast(self.grid, p, x)))
+            filters.append(ekf)
+            ids.append(i)
+        rate(candidates)
+        return candidates, filters, ids

@@ -1,0 +1,108 @@
+"""Targets seen in stereo, and the common target frame all robots' sightings establish
+(sec. 2.2).
+
+Each placed camera looks for every target where its believed pose (the corrected one,
+else the commanded one) puts it: the hole is found in the left and in the right image
+(LoG, then template matching, calibration/targets.py), the disparity of the two centres
+gives its depth, and the believed pose carries the point into the world. The common
+frame has its origin at the primary target (the mean of the robots' sightings of it),
+its z axis along the work-piece normal (from its CAD model) and its x axis toward the
+secondary target, when one was seen.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calibration import locate_hole
+from calibration.ekf import StereoCamera
+from mapping import Pinhole, opencv_pose, world_to_camera
+
+from .scene import Target
+
+POSE_SLACK_PX = 40.0  # how far a believed pose may misplace a target in the image
+
+
+@dataclass(frozen=True)
+class Sighting:
+    """One robot's stereo sighting of one target."""
+
+    robot: str
+    target: str
+    pixel: tuple[float, float]  # left image
+    disparity: float  # pixels
+    score: float  # the left template match
+    position: np.ndarray  # world (m), through the believed camera pose
+
+    def summary(self, truth: np.ndarray) -> dict[str, Any]:
+        return {"target": self.target, "pixel": [round(c, 3) for c in self.pixel],
+                "disparity_px": round(self.disparity, 3), "score": round(self.score, 4),
+                "position": self.position.round(5).tolist(),
+                "error_m": round(float(np.linalg.norm(self.position - truth)), 6)}
+
+
+def sight(robot: str, left: np.ndarray, right: np.ndarray, target: Target,
+          T_believed_mjcam: np.ndarray, pinhole: Pinhole, baseline_m: float) -> Sighting | None:
+    """The target found in both images near where the believed pose puts it; None if it
+    is behind the camera, out of the image or not found in both."""
+    T = opencv_pose(T_believed_mjcam)
+    p = world_to_camera(T, target.position[None])[0]
+    if p[2] <= 0.05:
+        return None
+    u, v = pinhole.project(p[None])[0]
+    if not pinhole.contains(np.array([[u, v]]), margin=5.0)[0]:
+        return None
+    view = T[:3, 3] - target.position
+    tilt = max(float(target.normal @ view) / float(np.linalg.norm(view)), 0.05)
+    radius_px = pinhole.fy * target.radius / float(p[2]) * math.sqrt(tilt)
+    search = 3 * radius_px + POSE_SLACK_PX
+    found = locate_hole(left, (float(u), float(v)), radius_px, search)
+    if found is None:
+        return None
+    shift = pinhole.fx * baseline_m / float(p[2])  # the expected disparity
+    other = locate_hole(right, (found.u - shift, found.v), radius_px, search)
+    if other is None or abs(other.v - found.v) > 1.5 or found.u - other.u <= 0:
+        return None
+    d = found.u - other.u
+    camera = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, baseline_m)
+    in_cam = camera.point(np.array([found.u, found.v, d]))
+    return Sighting(robot, target.name, (found.u, found.v), d, found.score,
+                    T[:3, :3] @ in_cam + T[:3, 3])
+
+
+def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict[str, Any]:
+    """The target frame from every robot's sightings, and each target's measured place
+    (mean over robots) against the truth."""
+    out: dict[str, Any] = {"targets": {}}
+    measured: dict[str, np.ndarray] = {}
+    for t in targets:
+        seen = [s.position for s in sightings if s.target == t.name]
+        if not seen:
+            continue
+        mean = np.mean(seen, axis=0)
+        measured[t.name] = mean
+        out["targets"][t.name] = {
+            "robots": [s.robot for s in sightings if s.target == t.name],
+            "position": mean.round(5).tolist(),
+            "spread_m": round(float(max(np.linalg.norm(p - mean) for p in seen)), 6),
+            "error_m": round(float(np.linalg.norm(mean - t.position)), 6)}
+    primary = next(t for t in targets if t.role == "primary")
+    if primary.name not in measured:
+        out["frame"] = None
+        return out
+    z = primary.normal / np.linalg.norm(primary.normal)
+    toward = next((measured[t.name] - measured[primary.name] for t in targets
+                   if t.role == "secondary" and t.name in measured), None)
+    if toward is None or np.linalg.norm(toward - (toward @ z) * z) < 1e-6:
+        x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.9 else np.cross([1.0, 0.0, 0.0], z)
+    else:
+        x = toward - (toward @ z) * z
+    x = x / np.linalg.norm(x)
+    out["frame"] = {"origin": measured[primary.name].round(5).tolist(),
+                    "x_axis": x.round(6).tolist(), "z_axis": z.round(6).tolist(),
+                    "y_axis": np.cross(z, x).round(6).tolist()}
+    return out
