@@ -36,34 +36,53 @@ def log_response(gray: np.ndarray, sigma: float) -> np.ndarray:
     return (sigma ** 2) * cv2.Laplacian(blurred, cv2.CV_32F, ksize=3)
 
 
-def disk_template(radius_px: float, margin: float = 1.0) -> np.ndarray:
-    """A dark disk (0) on a bright square (1), anti-aliased, side about 2 (1 + margin) r."""
-    half = math.ceil(radius_px * (1 + margin)) + 1
-    y, x = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float32)
-    return np.clip(np.hypot(x, y) - float(radius_px) + 0.5, 0.0, 1.0).astype(np.float32)
+def disk_template(radius_px: float, margin: float = 1.0,
+                  shape: np.ndarray | None = None) -> np.ndarray:
+    """A dark disk (0) on a bright square (1), anti-aliased, side about 2 (1 + margin) r.
+    With ``shape`` (2x2: pixel offset of the rim point at angle t is shape @ (cos t,
+    sin t)) the disk is the ellipse a circle seen obliquely makes."""
+    A = np.diag([radius_px, radius_px]) if shape is None else np.asarray(shape, float)
+    reach = float(np.linalg.norm(A, 2))
+    half = math.ceil(reach * (1 + margin)) + 1
+    y, x = np.mgrid[-half:half + 1, -half:half + 1].astype(float)
+    q = np.linalg.solve(A, np.stack([x.ravel(), y.ravel()]))  # in unit-circle units
+    norm = np.linalg.norm(q, axis=0)
+    unit = np.where(norm > 1e-9, q / np.maximum(norm, 1e-9), np.array([[1.0], [0.0]]))
+    scale = np.linalg.norm(A @ unit, axis=0)  # pixels per unit radius this way
+    signed = ((norm - 1) * scale).reshape(x.shape)  # about the distance to the rim (px)
+    return np.clip(signed + 0.5, 0.0, 1.0).astype(np.float32)
 
 
 def _subpixel(values: np.ndarray, y: int, x: int) -> tuple[float, float]:
-    """Peak offset (dx, dy) from a parabola through the 3x3 neighbourhood."""
-    def offset(a: float, b: float, c: float) -> float:
-        den = a - 2 * b + c
-        return 0.0 if abs(den) < 1e-12 else float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    """Peak offset (dx, dy) of the quadratic surface through the 3x3 neighbourhood (its
+    cross term follows a tilted peak, as an oblique hole's ellipse makes)."""
     h, w = values.shape
     if not (0 < y < h - 1 and 0 < x < w - 1):
         return 0.0, 0.0
-    return (offset(values[y, x - 1], values[y, x], values[y, x + 1]),
-            offset(values[y - 1, x], values[y, x], values[y + 1, x]))
+    dy, dx = np.mgrid[-1:2, -1:2].reshape(2, -1).astype(float)
+    design = np.column_stack([np.ones(9), dx, dy, dx * dx, dy * dy, dx * dy])
+    c = np.linalg.lstsq(design, values[y - 1:y + 2, x - 1:x + 2].ravel().astype(float),
+                        rcond=None)[0]
+    hessian = np.array([[2 * c[3], c[5]], [c[5], 2 * c[4]]])
+    if np.linalg.det(hessian) <= 0 or hessian[0, 0] >= 0:  # not a maximum
+        return 0.0, 0.0
+    ox, oy = np.linalg.solve(hessian, -c[1:3])
+    return float(np.clip(ox, -0.5, 0.5)), float(np.clip(oy, -0.5, 0.5))
 
 
 def detect_holes(image: np.ndarray, radius_px: float, max_count: int = 20,
-                 min_score: float = 0.5) -> list[HoleDetection]:
-    """Dark disks of about ``radius_px`` pixels, best first."""
+                 min_score: float = 0.5, shape: np.ndarray | None = None
+                 ) -> list[HoleDetection]:
+    """Dark disks of about ``radius_px`` pixels (of ``shape``, see
+    :func:`disk_template`, when given), best first."""
     gray = to_gray(image)
+    if shape is not None:
+        radius_px = math.sqrt(abs(float(np.linalg.det(shape))))  # the same area
     response = log_response(gray, max(radius_px / math.sqrt(2), 0.7))
     peaks = (response == cv2.dilate(response, np.ones((5, 5), np.uint8))) & (response > 0.05)
     ys, xs = np.nonzero(peaks)
     order = np.argsort(-response[ys, xs])[: 5 * max_count]
-    template = disk_template(radius_px)
+    template = disk_template(radius_px, shape=shape)
     half = template.shape[0] // 2
     found: list[HoleDetection] = []
     for y, x in zip(ys[order], xs[order], strict=True):
@@ -92,9 +111,9 @@ def _match(gray: np.ndarray, template: np.ndarray, half: int, x: int, y: int,
 
 
 def locate_hole(image: np.ndarray, expected_uv: tuple[float, float], radius_px: float,
-                search_px: float) -> HoleDetection | None:
+                search_px: float, shape: np.ndarray | None = None) -> HoleDetection | None:
     """The detected hole nearest to where it is expected, within ``search_px`` pixels."""
-    near = [d for d in detect_holes(image, radius_px)
+    near = [d for d in detect_holes(image, radius_px, shape=shape)
             if math.hypot(d.u - expected_uv[0], d.v - expected_uv[1]) <= search_px]
     return min(near, key=lambda d: math.hypot(d.u - expected_uv[0], d.v - expected_uv[1]),
                default=None)

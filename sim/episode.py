@@ -36,7 +36,6 @@ from mapping import (
     Pinhole,
     SensorModel,
     opencv_pose,
-    world_to_camera,
 )
 from placement import (
     CameraModel,
@@ -59,7 +58,7 @@ from .render import Renderer, camera_pinhole, camera_pose
 from .scenario import Scenario
 from .scene import Robot, Scene, Target, build_scene
 from .sensing import DepthSensor
-from .target_frame import Sighting, common_frame, sight
+from .target_frame import Sighting, common_frame, projected_disk, sight
 
 VERSION = "0.1.0"
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
@@ -129,18 +128,15 @@ def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: i
                 T_world_mjcam: np.ndarray, pinhole: Pinhole) -> dict[str, Any]:
     """Locate the target in the image by LoG and template matching, near where the camera
     pose puts it; the segmentation image says how much of it is really in view."""
-    T = opencv_pose(T_world_mjcam)
-    in_cam = world_to_camera(T, target.position[None])[0]
     visible_px = int((seg == target_geom).sum())
-    if in_cam[2] <= 0:
+    disk = projected_disk(target, opencv_pose(T_world_mjcam), pinhole)
+    if disk is None:
         return {"seen": False, "pixel": None, "target_pixels": visible_px}
-    expected = pinhole.project(in_cam[None])[0]
-    tilt = max(float(target.normal @ (T[:3, 3] - target.position))
-               / float(np.linalg.norm(T[:3, 3] - target.position)), 0.05)
-    radius_px = pinhole.fy * target.radius / float(in_cam[2])
-    full_area = math.pi * radius_px ** 2 * tilt
-    found = locate_hole(rgb, (float(expected[0]), float(expected[1])),
-                        radius_px * math.sqrt(tilt), search_px=max(3 * radius_px, 10.0))
+    expected, shape = disk
+    full_area = math.pi * abs(float(np.linalg.det(shape)))
+    radius_px = math.sqrt(full_area / math.pi)
+    found = locate_hole(rgb, (float(expected[0]), float(expected[1])), radius_px,
+                        search_px=max(3 * radius_px, 10.0), shape=shape)
     seen = found is not None and visible_px >= 0.5 * full_area
     return {"seen": seen,
             "pixel": None if found is None else [found.u, found.v],

@@ -45,26 +45,42 @@ class Sighting:
                 "error_m": round(float(np.linalg.norm(self.position - truth)), 6)}
 
 
+def projected_disk(target: Target, T_world_cam: np.ndarray, pinhole: Pinhole
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where a camera (OpenCV convention) sees the target's centre (u, v), and the 2x2
+    map from the unit circle to its rim's pixel offsets (the ellipse of the oblique
+    hole, to first order); None if it is behind the camera."""
+    R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    p = R.T @ (target.position - t)
+    if p[2] <= 0.05:
+        return None
+    x, y, z = p
+    J = np.array([[pinhole.fx / z, 0.0, -pinhole.fx * x / z ** 2],
+                  [0.0, pinhole.fy / z, -pinhole.fy * y / z ** 2]]) @ R.T  # d pixel / d world
+    n = target.normal / np.linalg.norm(target.normal)
+    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    return pinhole.project(p[None])[0], target.radius * J @ np.column_stack([e1, e2])
+
+
 def sight(robot: str, left: np.ndarray, right: np.ndarray, target: Target,
           T_believed_mjcam: np.ndarray, pinhole: Pinhole, baseline_m: float) -> Sighting | None:
     """The target found in both images near where the believed pose puts it; None if it
     is behind the camera, out of the image or not found in both."""
     T = opencv_pose(T_believed_mjcam)
-    p = world_to_camera(T, target.position[None])[0]
-    if p[2] <= 0.05:
+    disk = projected_disk(target, T, pinhole)
+    if disk is None or not pinhole.contains(disk[0][None], margin=5.0)[0]:
         return None
-    u, v = pinhole.project(p[None])[0]
-    if not pinhole.contains(np.array([[u, v]]), margin=5.0)[0]:
-        return None
-    view = T[:3, 3] - target.position
-    tilt = max(float(target.normal @ view) / float(np.linalg.norm(view)), 0.05)
-    radius_px = pinhole.fy * target.radius / float(p[2]) * math.sqrt(tilt)
+    (u, v), shape = disk
+    radius_px = math.sqrt(abs(float(np.linalg.det(shape))))
     search = 3 * radius_px + POSE_SLACK_PX
-    found = locate_hole(left, (float(u), float(v)), radius_px, search)
+    found = locate_hole(left, (float(u), float(v)), radius_px, search, shape)
     if found is None:
         return None
-    shift = pinhole.fx * baseline_m / float(p[2])  # the expected disparity
-    other = locate_hole(right, (found.u - shift, found.v), radius_px, search)
+    depth = float(world_to_camera(T, target.position[None])[0, 2])
+    shift = pinhole.fx * baseline_m / depth  # the expected disparity
+    other = locate_hole(right, (found.u - shift, found.v), radius_px, search, shape)
     if other is None or abs(other.v - found.v) > 1.5 or found.u - other.u <= 0:
         return None
     d = found.u - other.u

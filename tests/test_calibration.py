@@ -13,6 +13,7 @@ from calibration import detect_holes, disk_template, locate_hole, log_response, 
 from mapping import Pinhole, opencv_pose, world_to_camera
 from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
 from sim.ik import solve_camera_pose
+from sim.target_frame import projected_disk
 
 
 def _disk_image(u: float, v: float, r: float, shape=(240, 320), noise: float = 0.0,
@@ -71,11 +72,30 @@ def test_rendered_target_found_where_the_camera_model_projects_it():
     in_cam = world_to_camera(opencv_pose(camera_pose(data, robot.camera)), target.position[None])
     expected = pinhole.project(in_cam)[0]
     radius_px = pinhole.fy * target.radius / in_cam[0, 2]
-    found = locate_hole(rgb, tuple(expected), radius_px, search_px=3 * radius_px)
+    disk = projected_disk(target, opencv_pose(camera_pose(data, robot.camera)), pinhole)
+    assert disk is not None and np.allclose(disk[0], expected)
+    found = locate_hole(rgb, tuple(expected), radius_px, search_px=3 * radius_px, shape=disk[1])
     assert found is not None
-    assert math.hypot(found.u - expected[0], found.v - expected[1]) < 1.0
+    assert math.hypot(found.u - expected[0], found.v - expected[1]) < 0.5
     assert found.score > 0.7
     secondary = next(t for t in scene.targets if t.role == "secondary")
     other = pinhole.project(world_to_camera(opencv_pose(camera_pose(data, robot.camera)),
                                             secondary.position[None]))[0]
     assert math.hypot(found.u - other[0], found.v - other[1]) > 2 * radius_px
+
+
+def test_an_oblique_hole_is_found_by_its_ellipse():
+    """A circle seen obliquely is an ellipse; the shaped template finds its centre."""
+    u, v, a, b, angle = 160.37, 118.81, 14.0, 5.0, 30.0
+    img = np.full((240, 320), 190, np.uint8)
+    cv2.ellipse(img, (round(u * 256), round(v * 256)), (round(a * 256), round(b * 256)),
+                angle, 0, 360, 15, -1, lineType=cv2.LINE_AA, shift=8)
+    c, s = math.cos(math.radians(angle)), math.sin(math.radians(angle))
+    shape = np.array([[c, -s], [s, c]]) @ np.diag([a, b])  # unit circle -> rim offsets
+    template = disk_template(0.0, shape=shape)
+    centre = template.shape[0] // 2
+    assert template[centre, centre] == 0.0 and template[0, 0] == 1.0
+    assert template[centre + 6, centre + 10] == 0.0  # 12 px along the major axis: inside
+    assert template[centre + 6, centre - 4] == 1.0  # 7 px along the minor axis: outside
+    found = locate_hole(img, (u + 3, v - 2), math.sqrt(a * b), search_px=10, shape=shape)
+    assert found is not None and math.hypot(found.u - u, found.v - v) < 0.25

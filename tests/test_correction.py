@@ -50,8 +50,8 @@ def test_stereo_keypoints_agree_with_the_rendered_depth(scene):
 
 def test_corrector_recovers_a_camera_whose_joints_erred_along_a_rendered_move(scene):
     """Kinematic move (no physics): the world's joints drift from the commanded ones by
-    up to 0.8 degrees each and the base by 2 cm; the corrector sees only the rendered
-    frames and the commanded joints."""
+    up to 0.8 degrees each and the base by 3 cm (the issue's case: at least 2 cm and 1
+    degree); the corrector sees only the rendered frames and the commanded joints."""
     s = load_scenario()
     robot = scene.robots[0]
     belief = scene.make_data()
@@ -62,7 +62,7 @@ def test_corrector_recovers_a_camera_whose_joints_erred_along_a_rendered_move(sc
     ik = solve_camera_pose(scene.model, scene.start_qpos, robot, target, goal_at)
     goal = ik.qpos[robot.qpos_adr]
     offset = np.zeros(len(start))
-    offset[:2] = [0.02, -0.015]  # base x, y (m)
+    offset[:2] = [0.025, -0.02]  # base x, y (m)
     offset[3:] = np.radians([0.8, -0.6, 0.7, -0.8, 0.6, 0.5])  # arm joints
     pinhole = camera_pinhole(scene.model, robot.camera)
     with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
@@ -80,7 +80,7 @@ def test_corrector_recovers_a_camera_whose_joints_erred_along_a_rendered_move(sc
         result = corrector.finish(robot)
     truth = camera_pose(world, robot.camera)
     before = pose_error(camera_pose(belief, robot.camera), truth)
-    assert before["position_m"] > 0.02
+    assert before["position_m"] > 0.02 and before["orientation_deg"] > 1.0
     assert result.pose is not None, result.reason
     after = pose_error(result.pose, truth)
     assert after["position_m"] < TARGET_M and after["orientation_deg"] < TARGET_DEG, after
