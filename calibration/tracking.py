@@ -48,7 +48,7 @@ class TrackerSettings:
     contrast: float = 0.01  # SIFT contrast threshold (of intensities in [0, 1])
     ratio: float = 0.8  # a match's descriptor distance over the runner-up's, at most
     row_px: float = 1.0  # a stereo match's rows differ by at most this
-    search_px: float = 20.0  # around the predicted projection
+    search_px: float = 30.0  # around the predicted projection
     inlier_px: float = 2.0
     min_inliers: int = 8
     min_seeding: int = 20  # a frame located from fewer starts no new fiducials
