@@ -1,5 +1,6 @@
 """Occupancy mapping: voxel grid, sensor model, depth integration. Free of MuJoCo."""
 
+from .cad import BoxModel, fit_model, move_object, voxels_of
 from .camera import MUJOCO_TO_OPENCV, Pinhole, camera_to_world, opencv_pose, world_to_camera
 from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit, stored_log_odds
 from .integrate import integrate_depth
@@ -11,6 +12,7 @@ __all__ = [
     "GAINS",
     "LOG_ODDS_SCALE",
     "MUJOCO_TO_OPENCV",
+    "BoxModel",
     "GainModel",
     "OccupancyGrid",
     "Pinhole",
@@ -19,15 +21,18 @@ __all__ = [
     "View",
     "camera_to_world",
     "first_hits",
+    "fit_model",
     "integrate_depth",
     "logit",
     "mark_free_image",
     "mean_entropy",
+    "move_object",
     "opencv_pose",
     "region_mask",
     "stereo_depth",
     "stored_log_odds",
     "traverse",
     "view_rays",
+    "voxels_of",
     "world_to_camera",
 ]

@@ -1,0 +1,78 @@
+"""The map updated from a moving object's CAD model (sec. 3, steps 1-4), against brute
+force and by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mapping import OccupancyGrid
+from mapping.cad import BoxModel, fit_model, move_object, to_object, voxels_of
+
+PANEL = BoxModel(np.array([[0.0, 0.0, 0.075]]), np.array([[0.005, 0.1, 0.075]]))
+
+
+def pose(x: float, y: float, z: float, yaw_deg: float = 0.0, tilt_deg: float = 0.0
+         ) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("zx", [yaw_deg, tilt_deg], degrees=True).as_matrix()
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def test_distance_by_hand():
+    box = BoxModel(np.zeros((1, 3)), np.array([[1.0, 2.0, 3.0]]))
+    points = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [2.0, 3.0, 0.0], [0.5, 0.0, 0.0]])
+    assert box.distance(points) == pytest.approx([-1.0, 1.0, np.sqrt(2.0), -0.5])
+    assert PANEL.size == pytest.approx(0.2)
+
+
+def test_voxels_of_match_brute_force_sampling():
+    grid = OccupancyGrid.from_bounds(np.zeros(3), np.ones(3), 0.05)
+    at = pose(0.43, 0.51, 0.2, yaw_deg=30.0)
+    mask = voxels_of(grid, PANEL, at)
+    # brute force: a voxel is touched when the model passes within half its diagonal
+    centres = grid.centers().reshape(-1, 3)
+    expected = PANEL.distance(to_object(at, centres)) <= 0.5 * np.sqrt(3) * 0.05
+    assert np.array_equal(mask.ravel(), expected)
+    assert mask.sum() > 10
+    # every point of the panel's surface lies in a marked voxel
+    rng = np.random.default_rng(0)
+    local = rng.uniform(-1, 1, (2000, 3)) * PANEL.halves[0] + PANEL.centres[0]
+    world = local @ at[:3, :3].T + at[:3, 3]
+    assert mask[tuple(grid.index(world).T)].all()
+
+
+def test_moving_the_object_leaves_no_stale_voxels_and_marks_the_new_place():
+    grid = OccupancyGrid.from_bounds(np.zeros(3), np.ones(3), 0.05)
+    grid.set_probability(0.2)  # known free
+    old, new = pose(0.3, 0.3, 0.1), pose(0.7, 0.6, 0.3, yaw_deg=45.0)
+    move_object(grid, PANEL, None, old)
+    assert (grid.probability()[voxels_of(grid, PANEL, old)] > 0.9).all()
+    freed, occupied = move_object(grid, PANEL, old, new)
+    p = grid.probability()
+    assert freed > 0 and occupied > 0
+    now = voxels_of(grid, PANEL, new)
+    assert (p[now] > 0.9).all()
+    assert (p[~now] < 0.5).all()  # nothing left where the panel used to be
+
+
+def test_fit_recovers_the_pose_from_surface_points():
+    rng = np.random.default_rng(1)
+    truth = pose(0.4, -0.2, 0.55, yaw_deg=12.0, tilt_deg=3.0)
+    # points on the two large faces and the bottom edge region, as a camera would see
+    local = np.column_stack([rng.choice([-0.005, 0.005], 600), rng.uniform(-0.1, 0.1, 600),
+                             rng.uniform(0.0, 0.15, 600)])
+    edge = np.column_stack([rng.uniform(-0.005, 0.005, 100), rng.uniform(-0.1, 0.1, 100),
+                            np.zeros(100)])
+    side = np.column_stack([rng.uniform(-0.005, 0.005, 100), np.full(100, 0.1),
+                            rng.uniform(0.0, 0.15, 100)])
+    local = np.vstack([local, edge, side])
+    world = local @ truth[:3, :3].T + truth[:3, 3] + rng.normal(0, 0.001, local.shape)
+    start = pose(0.43, -0.17, 0.53, yaw_deg=5.0)  # 4 cm and 7 degrees off
+    found, rms = fit_model(PANEL, world, start)
+    assert np.linalg.norm(found[:3, 3] - truth[:3, 3]) < 0.003
+    angle = Rotation.from_matrix(found[:3, :3].T @ truth[:3, :3]).magnitude()
+    assert np.degrees(angle) < 1.0
+    assert rms < 0.002
