@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 SIZE = 512  # texels a side
-OCTAVES = (8, 16, 32, 64, 128, 256)  # noise cells a side, coarse to fine
+OCTAVES = (8, 16, 32, 64, 128, 256, 512)  # noise cells a side, coarse to fine (512: grain)
 PERSISTENCE = 0.9  # amplitude ratio from one octave to the next finer one
 
 
