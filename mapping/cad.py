@@ -16,12 +16,15 @@ centre (the voxel touches it), as a sensor would have mapped it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from .grid import OccupancyGrid
+
+FREE_SPACE_M = 0.004  # how far in front of a seen point the camera's ray counts as free
 
 
 @dataclass(frozen=True)
@@ -74,26 +77,43 @@ def voxels_of(grid: OccupancyGrid, model: BoxModel, pose: np.ndarray) -> np.ndar
     return mask
 
 
-def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray, loss_scale_m: float = 0.005
-        ) -> tuple[np.ndarray, float]:
+def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
+              viewpoints: np.ndarray | None = None,
+              loss_scales_m: tuple[float, ...] = (0.02, 0.005)) -> tuple[np.ndarray, float]:
     """The pose (4x4) that puts the world points (n, 3) on the model's surface, from
     ``initial``; and the RMS distance (m) of the points to it. Robust (soft-L1) against
-    the odd point that is not the object's."""
-    R0 = Rotation.from_matrix(initial[:3, :3])
+    the odd point that is not the object's, coarse to fine: the first loss scale lets a
+    start a few centimetres off be pulled in, the last one ignores stray points.
 
-    def pose_of(x: np.ndarray) -> np.ndarray:
-        T = np.eye(4)
-        T[:3, :3] = (Rotation.from_rotvec(x[:3]) * R0).as_matrix()
-        T[:3, 3] = initial[:3, 3] + x[3:]
-        return T
+    With ``viewpoints`` (n, 3: the camera centre that saw each point) the space just in
+    front of each point, which the camera saw through, must be outside the model: the
+    points lie on the faces turned to the camera, not on the far side of a thin part."""
+    pose = np.array(initial, dtype=float)
+    ahead = None
+    if viewpoints is not None:
+        toward = viewpoints - points
+        ahead = points + FREE_SPACE_M * toward / np.linalg.norm(toward, axis=1, keepdims=True)
+    for scale in loss_scales_m:
+        R0, t0 = Rotation.from_matrix(pose[:3, :3]), pose[:3, 3].copy()
 
-    def residuals(x: np.ndarray) -> np.ndarray:
-        return model.distance(to_object(pose_of(x), points))
+        def pose_of(x: np.ndarray, R0: Rotation = R0, t0: np.ndarray = t0) -> np.ndarray:
+            T = np.eye(4)
+            T[:3, :3] = (Rotation.from_rotvec(x[:3]) * R0).as_matrix()
+            T[:3, 3] = t0 + x[3:]
+            return T
 
-    found = least_squares(residuals, np.zeros(6), loss="soft_l1", f_scale=loss_scale_m,
-                          x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05]))
-    pose = pose_of(found.x)
-    return pose, float(np.sqrt(np.mean(residuals(found.x) ** 2)))
+        def residuals(x: np.ndarray, pose_of: Any = pose_of) -> np.ndarray:
+            T = pose_of(x)
+            on = model.distance(to_object(T, points))
+            if ahead is None:
+                return on
+            return np.concatenate([on, np.minimum(model.distance(to_object(T, ahead)), 0.0)])
+
+        found = least_squares(residuals, np.zeros(6), loss="soft_l1", f_scale=scale,
+                              x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05]))
+        pose = pose_of(found.x)
+    distances = model.distance(to_object(pose, points))
+    return pose, float(np.sqrt(np.mean(distances ** 2)))
 
 
 def move_object(grid: OccupancyGrid, model: BoxModel, old: np.ndarray | None,

@@ -52,13 +52,15 @@ from .correction import Correction, PoseCorrector
 from .exploration import Exploration
 from .ik import IKResult
 from .motion import ErrorModel, MotionResult, Mover
+from .optics import Lens
 from .planning import ArmPlanner
 from .record import Recorder
 from .render import Renderer, camera_pinhole, camera_pose
 from .scenario import Scenario
 from .scene import Robot, Scene, Target, build_scene
 from .sensing import DepthSensor
-from .target_frame import Sighting, common_frame, projected_disk, sight
+from .target_frame import Sighting, common_frame, in_measured_frame, projected_disk, sight
+from .task import Camera, InsertionTask, TaskResult
 
 VERSION = "0.1.0"
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
@@ -143,6 +145,15 @@ def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: i
             "expected_pixel": expected.tolist(),
             "detection_score": None if found is None else found.score,
             "target_pixels": visible_px, "expected_target_pixels": round(full_area, 1)}
+
+
+def believed_pose(p: Placement) -> np.ndarray:
+    """Where the robot believes its camera is: corrected if it could be, else as
+    commanded (4x4, MuJoCo camera convention)."""
+    if p.correction is not None and p.correction.pose is not None:
+        return p.correction.pose
+    assert p.commanded_pose is not None, "only placed robots have a camera pose"
+    return p.commanded_pose
 
 
 def correction_summary(c: Correction | None, commanded: np.ndarray,
@@ -385,15 +396,53 @@ class Episode:
                 if p.commanded is not None:
                     taken.append(p.commanded)
             robots = self.look(placements, renderer)
+            frame = common_frame(self.sightings, self.scene.targets)
+            task = None
+            if self.s.task.enabled:
+                with self.timer("task"):
+                    task = self.task(placements, frame, renderer).summary()
         xml, files = self.scene.to_xml(self.data.qpos.copy(), self.mover.mount_overrides())
         self.timer.totals["total"] = time.perf_counter() - t0
         summary = {
             "version": VERSION, "scenario": self.s.name, "seed": self.s.seed,
-            "robots": robots, "mapping": mapping,
-            "target_frame": common_frame(self.sightings, self.scene.targets),
+            "robots": robots, "mapping": mapping, "target_frame": frame, "task": task,
             "timings_s": {k: round(v, 4) for k, v in self.timer.totals.items()},
         }
         return summary, xml, files
+
+    def task(self, placements: list[Placement], frame: dict[str, Any], renderer: Renderer
+             ) -> TaskResult:
+        """Stage 4: guide the panel into its slot with the placed cameras (sim/task.py);
+        a camera that keeps losing the panel is placed again on the updated map."""
+        s = self.s
+        cameras = [Camera(p.robot, believed_pose(p)) for p in placements
+                   if p.commanded_pose is not None]
+        slot_cad = self.nominal_slot()
+        slot = in_measured_frame(slot_cad, self.scene.targets, frame)
+        lens = Lens(s.camera.near_m, s.camera.far_m, s.camera.coc_px)
+        run = InsertionTask(self.scene, self.model, self.data, renderer, self.pinhole,
+                            s.camera.baseline_m, lens, self.grid, s.task, self.rng,
+                            self.recorder)
+
+        def replace(cam: Camera, step: int) -> dict[str, Any] | None:
+            if not s.task.replace:
+                return None
+            others = [p.commanded for p in placements
+                      if p.robot is not cam.robot and p.commanded is not None]
+            again = self.place(cam.robot, others)
+            record: dict[str, Any] = {"step": step, "robot": cam.robot.name,
+                                      "reason": f"lost the panel {cam.lost_in_a_row} steps running",
+                                      "placed": again.commanded_pose is not None}
+            if again.commanded_pose is not None and again.commanded is not None:
+                cam.believed = believed_pose(again)
+                record["candidate_position"] = again.commanded.tolist()
+            return record
+
+        return run.run(cameras, slot, replace)
+
+    def nominal_slot(self) -> np.ndarray:
+        """The slot's place in the work-piece's CAD model (world, m)."""
+        return np.array(self.belief.site("workpiece/slot").xpos)
 
     # ------------------------------------------------------------ helpers
 

@@ -162,6 +162,22 @@ class Recorder:
                          rr.Arrows3D(vectors=0.1 * np.eye(3), colors=[[255, 0, 0], [0, 255, 0],
                                                                       [0, 0, 255]]))
 
+    def panel(self, time_s: float, true: np.ndarray, measured: np.ndarray | None,
+              displacement_m: float | None = None) -> None:
+        """The panel during the task, on the ``sim_time`` timeline: its true bottom-edge
+        centre, where the cameras measured it, and the measured distance to its slot."""
+        if self.rec is None:
+            return
+        self.rec.set_time("sim_time", duration=time_s)
+        self.rec.log("world/panel/true", rr.Points3D([true], radii=0.006, colors=[60, 220, 60]))
+        if measured is not None:
+            self.rec.log("world/panel/measured",
+                         rr.Points3D([measured], radii=0.006, colors=[230, 60, 60]))
+            self.rec.log("task/measurement_error_m",
+                         rr.Scalars(float(np.linalg.norm(measured - true))))
+        if displacement_m is not None:
+            self.rec.log("task/displacement_m", rr.Scalars(displacement_m))
+
     def chosen(self, robot: str, position: np.ndarray, target: np.ndarray, label: str) -> None:
         if self.rec is not None:
             self.rec.log(f"world/{robot}/chosen",

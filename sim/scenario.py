@@ -65,6 +65,7 @@ class CameraConfig:
     baseline_m: float = _check(lambda v: 0 < v <= 0.2, "metres in (0, 0.2]", 0.12)
     near_m: float = _positive(0.35)  # depth of field, near limit
     far_m: float = _positive(1.5)  # depth of field, far limit
+    coc_px: float = _positive(1.5)  # blur-circle diameter at the depth of field's limits
 
 
 @dataclass(frozen=True)
@@ -243,6 +244,26 @@ class CorrectionConfig:
 
 
 @dataclass(frozen=True)
+class TaskConfig:
+    """The visually guided insertion (sec. 3): the panel is carried open-loop to a point
+    ``approach_m`` above its slot (arriving ``carry_error_m`` off, std per axis), then
+    steered by the placed cameras' measurements, step by step, until it stops."""
+
+    enabled: bool = False
+    tolerances: tuple[float, ...] = (0.2, 0.1, 0.01)  # of the panel's size
+    approach_m: float = _positive(0.15)
+    carry_error_m: float = _nonnegative(0.03)
+    step_noise_m: float = _nonnegative(0.001)  # std per axis of each step's execution
+    step_scale: float = _nonnegative(0.05)  # std of each step's relative gain error
+    gain: float = _check(lambda v: 0 < v <= 1, "a fraction in (0, 1]", 0.8)
+    max_step_m: float = _positive(0.03)
+    max_steps: int = _check(lambda v: 1 <= v <= 500, "an integer 1 to 500", 40)
+    stop_m: float = _positive(0.001)  # stop when the measured displacement is below this
+    lost_limit: int = _check(lambda v: 1 <= v <= 100, "an integer 1 to 100", 3)
+    replace: bool = True  # re-place a camera that lost the panel lost_limit times running
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str = "default"
     seed: int = _check(lambda v: v >= 0, "an integer >= 0", 0)
@@ -257,6 +278,7 @@ class Scenario:
     search: SearchConfig = field(default_factory=SearchConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     correction: CorrectionConfig = field(default_factory=CorrectionConfig)
+    task: TaskConfig = field(default_factory=TaskConfig)
     source: str = "<defaults>"  # the file it was read from
 
     def sensor(self) -> tuple[float, float, float, float]:

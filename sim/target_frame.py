@@ -122,3 +122,23 @@ def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict
                     "x_axis": x.round(6).tolist(), "z_axis": z.round(6).tolist(),
                     "y_axis": np.cross(z, x).round(6).tolist()}
     return out
+
+
+def frame_matrix(frame: dict[str, Any]) -> np.ndarray:
+    """The 4x4 pose of a frame as :func:`common_frame` gives it."""
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2] = frame["x_axis"], frame["y_axis"], frame["z_axis"]
+    T[:3, 3] = frame["origin"]
+    return T
+
+
+def in_measured_frame(point: np.ndarray, targets: tuple[Target, ...],
+                      measured: dict[str, Any]) -> np.ndarray:
+    """Where a point of the work-piece's CAD model (world, nominal) is, given the target
+    frame the robots measured: its place relative to the targets carried over."""
+    nominal = common_frame([Sighting("cad", t.name, (0.0, 0.0), 0.0, 1.0, t.position)
+                            for t in targets], targets)["frame"]
+    if measured.get("frame") is None or nominal is None:
+        return np.asarray(point, float)
+    moved = frame_matrix(measured["frame"]) @ np.linalg.inv(frame_matrix(nominal))
+    return moved[:3, :3] @ point + moved[:3, 3]
