@@ -23,7 +23,7 @@ from sim.task import Camera, InsertionTask, TaskResult, panel_model
 VIEW_FROM = np.array([-0.6, -0.3, 0.5])  # camera offset from the slot (m)
 
 
-def run_task(obstacles: tuple[ObstacleConfig, ...] = (), seed: int = 0
+def run_task(obstacles: tuple[ObstacleConfig, ...] = (), seed: int = 0, replace=None
              ) -> tuple[TaskResult, InsertionTask]:
     """One robot's camera looking at the slot from 0.85 m (no other obstacle unless
     given); the task run with the scenario's defaults, the camera pose known."""
@@ -43,7 +43,7 @@ def run_task(obstacles: tuple[ObstacleConfig, ...] = (), seed: int = 0
         task = InsertionTask(scene, scene.model, data, renderer, pinhole, s.camera.baseline_m,
                              Lens(s.camera.near_m, s.camera.far_m, s.camera.coc_px), grid,
                              s.task, np.random.default_rng(seed), Recorder(None, ""))
-        result = task.run([Camera(robot, camera_pose(data, robot.camera))], slot)
+        result = task.run([Camera(robot, camera_pose(data, robot.camera))], slot, replace)
     return result, task
 
 
@@ -62,7 +62,15 @@ def test_a_well_placed_camera_guides_the_panel_in():
 def test_the_same_camera_behind_an_occluder_fails_and_says_why():
     wall = ObstacleConfig(shape="box", position=(-0.45, -0.15, 0.75), size=(0.02, 0.3, 0.3),
                           yaw_deg=63.0)  # across the sight line, 30 cm from the slot
-    result, _ = run_task((wall,))
+    asked = []
+
+    def replace(cam, step):  # the episode would search and move again; here: stay
+        asked.append(step)
+        return {"step": step, "robot": cam.robot.name, "placed": False}
+
+    result, _ = run_task((wall,), replace=replace)
+    assert asked == [load_scenario().task.lost_limit - 1]  # once, when the limit was hit
+    assert result.replacements == [{"step": asked[0], "robot": "r1", "placed": False}]
     assert not any(result.success().values())
     assert result.measurements == 0 and result.failed
     reasons = {why for f in result.failed for why in f["why"].values()}
