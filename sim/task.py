@@ -233,9 +233,10 @@ class InsertionTask:
                     result.lost_views += 1
                 else:
                     cam.lost_in_a_row = 0
+            seeing = self._recover(cameras, step, result, replace)
             if pose is None:
                 result.failed.append({"step": step, "why": why})
-                if not self._recover(cameras, step, result, replace):
+                if not seeing:
                     result.stopped_by = "no camera sees the panel"
                     break
                 continue
@@ -272,8 +273,8 @@ class InsertionTask:
 
     def _recover(self, cameras: list[Camera], step: int, result: TaskResult,
                  replace: Callable[[Camera, int], dict[str, Any] | None] | None) -> bool:
-        """After a failed measurement: re-place the cameras that lost the panel too often;
-        whether the task can go on."""
+        """Re-place the cameras that lost the panel ``lost_limit`` steps running (once
+        each); whether any camera may still see it."""
         for cam in cameras:
             if cam.lost_in_a_row >= self.cfg.lost_limit and replace is not None \
                     and not any(r["robot"] == cam.robot.name for r in result.replacements):

@@ -106,3 +106,32 @@ def test_episode_reports_the_task(default_run):
     assert task["map_update"]["voxels_occupied"] > 0
     paths = set(RrdReader(out / "run.rrd").store().schema().entity_paths())
     assert {"/world/panel/true", "/world/panel/measured", "/task/displacement_m"} <= paths
+
+
+def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch):
+    """The episode's own re-placement: r1's images are made to miss the panel three
+    steps running; the rating function is searched again on the updated map, the robot
+    moves there, and the task records when and why."""
+    import sim.task as task_module
+    from sim.episode import Episode
+
+    base = load_scenario()
+    s = dataclasses.replace(base, correction=dataclasses.replace(base.correction, enabled=False),
+                            task=dataclasses.replace(base.task, max_steps=6))
+    real = task_module.InsertionTask._panel_points
+    blinded = {"r1": 3}
+
+    def blind(self, cam):
+        if blinded.get(cam.robot.name, 0) > 0:
+            blinded[cam.robot.name] -= 1
+            return "panel not in view (occluded or outside the image)"
+        return real(self, cam)
+
+    monkeypatch.setattr(task_module.InsertionTask, "_panel_points", blind)
+    summary, _, _ = Episode(s).run()
+    task = summary["task"]
+    assert [r["robot"] for r in task["replacements"]] == ["r1"]
+    again = task["replacements"][0]
+    assert again["step"] == 2 and "3 steps running" in again["reason"]
+    assert again["placed"] and len(again["candidate_position"]) == 3
+    assert task["lost_views"] >= 3 and task["measurements"] >= 1
