@@ -55,6 +55,13 @@ def invert(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def rotation_deg(A: np.ndarray, B: np.ndarray) -> float:
+    """The angle (deg) of the rotation between the rotation blocks of two poses (3x3 or
+    4x4)."""
+    rel = A[:3, :3].T @ B[:3, :3]
+    return float(np.degrees(np.arccos(np.clip((np.trace(rel) - 1) / 2, -1.0, 1.0))))
+
+
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
     """The rotation closest to M in the Frobenius norm."""
     U, _, Vt = np.linalg.svd(M)

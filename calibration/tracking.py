@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from .bundle import BundleResult, Keyframe, refine, triangulate
 from .ekf import StereoCamera
-from .pose import DegenerateGeometryError, sqpnp
+from .pose import DegenerateGeometryError, rotation_deg, sqpnp
 
 DESCRIPTOR_MAX = 300.0  # SIFT descriptor distance beyond which nothing matches
 
@@ -254,8 +254,8 @@ class FiducialTracker:
         except DegenerateGeometryError:
             return None
         jump = predicted @ np.linalg.inv(g01)  # camera motion from the located to the predicted
-        angle = np.degrees(np.arccos(np.clip((np.trace(jump[:3, :3]) - 1) / 2, -1.0, 1.0)))
-        if np.linalg.norm(jump[:3, 3]) > s.max_jump_m or angle > s.max_jump_deg:
+        if (np.linalg.norm(jump[:3, 3]) > s.max_jump_m
+                or rotation_deg(predicted, g01) > s.max_jump_deg):
             return None  # an implausible jump: more likely a false match than the truth
         return g01
 

@@ -35,6 +35,7 @@ from calibration.pose import (
     PoseEstimate,
     estimate_pose,
     invert,
+    rotation_deg,
 )
 from calibration.targets import to_gray
 from calibration.tracking import (
@@ -111,12 +112,6 @@ def mujoco_pose(T_cv: np.ndarray) -> np.ndarray:
     return T
 
 
-def turned_deg(A: np.ndarray, B: np.ndarray) -> float:
-    """Angle (deg) between the rotations of two poses (4x4)."""
-    rel = A[:3, :3].T @ B[:3, :3]
-    return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rel) - 1) / 2))))
-
-
 class PoseCorrector:
     """Takes the frames of each move and corrects the camera's pose at its end."""
 
@@ -167,7 +162,7 @@ class PoseCorrector:
             self._joints = np.array(measured, copy=True)
             T = self.nominal_pose(robot, measured)
             last = self._last_measured
-            if (turned_deg(last, T) >= cfg.frame_every_deg
+            if (rotation_deg(last, T) >= cfg.frame_every_deg
                     or np.linalg.norm(T[:3, 3] - last[:3, 3]) >= cfg.frame_every_m):
                 self._frame(robot, T)
         return sample

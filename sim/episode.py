@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 
 from calibration import locate_hole
+from calibration.pose import rotation_deg
 from mapping import (
     OccupancyGrid,
     Pinhole,
@@ -110,10 +111,8 @@ def pose_dict(T: np.ndarray) -> dict[str, list[float]]:
 def pose_error(commanded: np.ndarray, achieved: np.ndarray) -> dict[str, float]:
     """Position (m) and rotation angle (deg) from a commanded camera pose to the achieved
     one (4x4 each)."""
-    rel = commanded[:3, :3].T @ achieved[:3, :3]
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rel) - 1) / 2))))
     return {"position_m": float(np.linalg.norm(achieved[:3, 3] - commanded[:3, 3])),
-            "orientation_deg": angle}
+            "orientation_deg": rotation_deg(commanded, achieved)}
 
 
 def target_model(t: Target) -> TargetModel:

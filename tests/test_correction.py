@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from calibration.pose import rotation_deg
 from calibration.tracking import FeatureFinder, TrackerSettings
 from sim import Renderer, load_scenario
-from sim.correction import PoseCorrector, turned_deg
+from sim.correction import PoseCorrector
 from sim.episode import new_grid, pose_error
 from sim.ik import solve_camera_pose
 from sim.render import camera_pinhole, camera_pose
@@ -89,12 +90,13 @@ def test_corrector_recovers_a_camera_whose_joints_erred_along_a_rendered_move(sc
     assert all(f.covariance.shape == (3, 3) and len(f.track) >= 2 for f in result.used)
 
 
-def test_frames_are_taken_when_the_commanded_camera_moved_enough():
+def test_rotation_between_poses_by_hand():
     a = np.eye(4)
     b = np.eye(4)
     b[:3, :3] = np.array([[math.cos(0.1), -math.sin(0.1), 0], [math.sin(0.1), math.cos(0.1), 0],
                           [0, 0, 1]])
-    assert turned_deg(a, b) == pytest.approx(math.degrees(0.1))
+    assert rotation_deg(a, b) == pytest.approx(math.degrees(0.1))
+    assert rotation_deg(b, b) == 0.0
 
 
 def test_episode_reports_the_correction_against_the_truth(default_run):
