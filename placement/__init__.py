@@ -13,7 +13,15 @@ from .rating import (
     rate_best,
     resolution,
 )
-from .search import RatingField, Region, SearchSettings, candidates, search, target_points
+from .search import (
+    RatingField,
+    Region,
+    SearchSettings,
+    biased_random,
+    candidates,
+    search,
+    target_points,
+)
 from .tfv import ClearanceMap, clearance_map, hull_depths
 from .visibility import line_of_sight
 
@@ -29,6 +37,7 @@ __all__ = [
     "Weights",
     "above_plane",
     "angular_visibility",
+    "biased_random",
     "candidates",
     "circle_in_plane",
     "clearance_map",

@@ -56,13 +56,17 @@ class RatingField:
     target: np.ndarray  # index into the targets searched, per candidate
     strategy: str = "exhaustive"
     hulls: dict[str, list[Hull]] = field(default_factory=dict)  # expanded, per target
+    order: np.ndarray | None = None  # the order candidates are tried in, if not by rating
 
     @property
     def evaluated(self) -> int:
         return len(self.target)
 
     def ranked(self) -> np.ndarray:
-        """Indices of candidates with a positive rating, best first (ties by index)."""
+        """Indices of candidates with a positive rating, best first (ties by index); or
+        ``order`` when a placement method other than the rating function set it."""
+        if self.order is not None:
+            return self.order
         total = self.ratings.total
         order = np.lexsort((np.arange(len(total)), -total))
         return order[total[order] > 0]
@@ -182,3 +186,25 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
                                ).tfv(positions - target.position)
     ratings, which = rate_best(positions, targets, camera, tfv, occupancy, weights)
     return RatingField(ratings, which, settings.strategy, hulls)
+
+
+def biased_random(rated: RatingField, targets: Sequence[TargetModel], camera: CameraModel,
+                  rng: np.random.Generator, max_angle_deg: float = 60.0) -> RatingField:
+    """The paper's baseline, biased random placement: candidates tried in a random order,
+    among those the rating function's region allows (known free, within reach) that see
+    a target within the depth of field and at most ``max_angle_deg`` off its normal;
+    occlusion and the rest of the rating are ignored. Each candidate keeps its rating
+    (for the record) and is assigned the first target it qualifies for."""
+    positions = rated.ratings.positions
+    which = np.full(len(positions), -1)
+    for k, t in reversed(list(enumerate(targets))):  # the first qualifying target wins
+        view = positions - t.position
+        distance = np.linalg.norm(view, axis=1)
+        n = t.normal / np.linalg.norm(t.normal)
+        cos = (view @ n) / np.maximum(distance, 1e-12)
+        ok = ((distance >= camera.near) & (distance <= camera.far)
+              & (cos >= np.cos(np.radians(max_angle_deg))))
+        which[ok] = k
+    admissible = np.flatnonzero(which >= 0)
+    return RatingField(rated.ratings, np.where(which >= 0, which, rated.target),
+                       "biased_random", rated.hulls, rng.permutation(admissible))

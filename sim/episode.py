@@ -44,6 +44,7 @@ from placement import (
     SearchSettings,
     TargetModel,
     Weights,
+    biased_random,
     search,
     target_points,
 )
@@ -237,6 +238,9 @@ class Episode:
             field_ = search(self.grid, [target_model(t) for t in targets], self.camera_model,
                             Weights(r.alpha, r.beta, r.gamma, r.delta), r.free_threshold,
                             region, settings, self.rng, others)
+        if q.method == "biased_random":
+            field_ = biased_random(field_, [target_model(t) for t in targets], self.camera_model,
+                                   self.rng, q.random_max_angle_deg)
         self.recorder.candidates(robot.name, field_.ratings.positions, field_.ratings.total)
         result = Placement(robot, strategy=field_.strategy, evaluated=field_.evaluated)
         start = belief.qpos.copy()

@@ -194,6 +194,9 @@ class RatingConfig:
 
 @dataclass(frozen=True)
 class SearchConfig:
+    # the placement method: the rating function, or the paper's biased random baseline
+    method: Literal["rating", "biased_random"] = "rating"
+    random_max_angle_deg: float = _check(lambda v: 0 < v <= 90, "degrees in (0, 90]", 60.0)
     strategy: Literal["exhaustive", "coarse", "bounded", "random"] = "exhaustive"
     coarse_step: int = _check(lambda v: 1 <= v <= 16, "an integer 1 to 16", 2)
     max_distance_m: float = _positive(1.0)  # for "bounded": from the nearest target

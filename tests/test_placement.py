@@ -13,6 +13,7 @@ from placement import (
     TargetModel,
     Weights,
     angular_visibility,
+    biased_random,
     depth_of_field,
     line_of_sight,
     rate,
@@ -153,3 +154,26 @@ def test_search_switches_to_a_secondary_target():
     d = np.linalg.norm(covered.ratings.positions[i] - secondary.position)
     R = 2 * d * math.tan(CAMERA.fov / 2) / CAMERA.pixels + 0.0005
     assert covered.ratings.resolution[i] == pytest.approx(1 / R)
+
+
+def test_biased_random_placement_ignores_occlusion_within_its_bounds():
+    """The paper's baseline: a random order over the candidates in the depth of field
+    and within the angle bound, occluded or not; the same generator, the same order."""
+    target = TargetModel("t", np.array([0.0, 0.0, 0.2]), UP, 0.02)
+    g = free_grid(res=0.05)
+    occupy(g, (-1, -1, 0), (1, 1, 0.2))
+    occupy(g, (-0.15, -1, 0.5), (0.15, 1, 0.6))  # a beam over the target
+    rated = search(g, [target], CAMERA)
+    field = biased_random(rated, [target], CAMERA, np.random.default_rng(3), 45.0)
+    order = field.ranked()
+    view = rated.ratings.positions - target.position
+    distance = np.linalg.norm(view, axis=1)
+    angle = np.degrees(np.arccos(view[:, 2] / distance))
+    allowed = np.flatnonzero((distance >= CAMERA.near) & (distance <= CAMERA.far)
+                             & (angle <= 45.0))
+    assert sorted(order) == sorted(allowed) and len(order) > 100
+    assert not np.array_equal(order, np.sort(order))  # shuffled
+    assert np.array_equal(order, biased_random(rated, [target], CAMERA,
+                                               np.random.default_rng(3), 45.0).ranked())
+    assert (rated.ratings.tfv[order] < 1).any()  # it tries views the beam (partly) hides
+    assert field.strategy == "biased_random" and (field.target[order] == 0).all()
