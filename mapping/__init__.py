@@ -1,7 +1,14 @@
 """Occupancy mapping: voxel grid, sensor model, depth integration. Free of MuJoCo."""
 
 from .cad import BoxModel, fit_model, move_object, voxels_of
-from .camera import MUJOCO_TO_OPENCV, Pinhole, camera_to_world, opencv_pose, world_to_camera
+from .camera import (
+    MUJOCO_TO_OPENCV,
+    Pinhole,
+    camera_to_world,
+    mujoco_pose,
+    opencv_pose,
+    world_to_camera,
+)
 from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit, stored_log_odds
 from .integrate import integrate_depth
 from .raycast import first_hits, mark_free_image, traverse
@@ -27,6 +34,7 @@ __all__ = [
     "mark_free_image",
     "mean_entropy",
     "move_object",
+    "mujoco_pose",
     "opencv_pose",
     "region_mask",
     "stereo_depth",

@@ -68,6 +68,12 @@ def opencv_pose(T_world_mjcam: np.ndarray) -> np.ndarray:
     return T
 
 
+def mujoco_pose(T_world_cvcam: np.ndarray) -> np.ndarray:
+    """``T_world_cam`` of the MuJoCo-convention frame from an OpenCV one: the flip is its
+    own inverse, so this is :func:`opencv_pose` read the other way."""
+    return opencv_pose(T_world_cvcam)
+
+
 def world_to_camera(T_world_cam: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Points (n, 3) in the world expressed in the camera frame."""
     R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]

@@ -45,7 +45,7 @@ from calibration.tracking import (
     StereoFeatures,
     TrackerSettings,
 )
-from mapping import MUJOCO_TO_OPENCV, OccupancyGrid, Pinhole, opencv_pose
+from mapping import OccupancyGrid, Pinhole, mujoco_pose, opencv_pose
 
 from .render import Renderer, camera_pose
 from .scenario import CorrectionConfig
@@ -103,13 +103,6 @@ class Correction:
                         "rating": round(f.rating, 4), "track_length": len(f.track)}
                        for f in self.used]
         return out
-
-
-def mujoco_pose(T_cv: np.ndarray) -> np.ndarray:
-    """The MuJoCo camera pose of an OpenCV-convention one (the flip is its own inverse)."""
-    T = np.array(T_cv, copy=True)
-    T[:3, :3] = T[:3, :3] @ MUJOCO_TO_OPENCV
-    return T
 
 
 class PoseCorrector:
@@ -216,7 +209,8 @@ class PoseCorrector:
         if not chosen:
             out.reason = "no fiducial of the final frame was seen before"
             return out
-        index = [next(k for k, c in enumerate(candidates) if c is pick_) for pick_ in chosen]
+        position = {id(c): k for k, c in enumerate(candidates)}
+        index = [position[id(c)] for c in chosen]
         fids = [filters[k] for k in index]
         zs = np.array([frames[-1].observations[ids[k]] for k in index])
         world = np.array([f.x for f in fids])

@@ -359,12 +359,10 @@ class Episode:
                ) -> list[dict[str, Any]]:
         """Every target the camera finds in stereo, placed through its believed pose (the
         corrected one, else the commanded one)."""
-        believed = p.commanded_pose
-        if p.correction is not None and p.correction.pose is not None:
-            believed = p.correction.pose
         rows: list[dict[str, Any]] = []
-        if believed is None:
+        if p.commanded_pose is None:
             return rows
+        believed = believed_pose(p)
         for t in self.scene.targets:
             found = sight(robot.name, left, right, t, believed, self.pinhole,
                           self.s.camera.baseline_m)

@@ -220,7 +220,7 @@ class InsertionTask:
             lift = np.array([0.0, 0.0, 4 * s * (1 - s) * cfg.approach_m])
             self._move_panel((1 - s) * start + s * arrival + lift)
             self.recorder.panel(t0 + 0.2 * k, self.panel[:3, 3], None)
-        guess = self.panel.copy()
+        guess = lying.copy()  # the carry keeps the orientation it was picked up with
         guess[:3, 3] = slot + above  # where the carrier believes it put the panel
         moved_from = lying
         for step in range(cfg.max_steps):

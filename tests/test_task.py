@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from mapping import voxels_of
 from sim import Renderer, load_scenario
 from sim.episode import new_grid
 from sim.ik import solve_camera_pose
@@ -54,8 +55,6 @@ def test_a_well_placed_camera_guides_the_panel_in():
     assert result.stopped_by == "measured displacement below stop_m"
     # the map: the panel's voxels where it ended are occupied, none left where it lay
     p = task.grid.probability()
-    from mapping import voxels_of
-
     assert (p[voxels_of(task.grid, task.model, task.panel)] > 0.9).mean() > 0.8
 
 
