@@ -12,6 +12,7 @@ disparity below ``StereoSettings.min_disparity_px`` (too far to measure).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -100,13 +101,18 @@ def _check_image(name: str, image: np.ndarray, camera: Pinhole) -> np.ndarray:
 
 
 def stereo_depth(left_rgb: np.ndarray, right_rgb: np.ndarray, camera: Pinhole,
-                 baseline_m: float, settings: StereoSettings = StereoSettings()) -> np.ndarray:
+                 baseline_m: float, settings: StereoSettings = StereoSettings(),
+                 window: tuple[slice, slice] | None = None) -> np.ndarray:
     """Metric z-depth (m) in the left camera, float32 (h, w), from a rectified pair.
 
     ``left_rgb`` and ``right_rgb`` are uint8 images (h, w, 3) or grey (h, w) of
     ``camera``; the right camera sits ``baseline_m`` along the left one's +x axis.
     z = fx * baseline / disparity, with SGBM's 1/16-px subpixel disparity. NaN where
     there is no valid disparity; never ``inf``, never <= 0.
+
+    With ``window`` (rows, columns of the left image), only that part is matched (and
+    the right image's columns from ``num_disparities`` to its left): much cheaper for a
+    small object; SGBM's smoothing paths then end at the window's edges.
     """
     if not baseline_m > 0:
         raise ValueError(f"baseline_m must be > 0, got {baseline_m}")
@@ -114,6 +120,17 @@ def stereo_depth(left_rgb: np.ndarray, right_rgb: np.ndarray, camera: Pinhole,
     right = _check_image("right", right_rgb, camera)
     if left.shape != right.shape:
         raise ValueError(f"left and right images differ in shape: {left.shape}, {right.shape}")
+    if window is not None:
+        rows, cols = (slice(*w.indices(n)[:2]) for w, n in
+                      zip(window, (camera.height, camera.width), strict=True))
+        first = max(0, cols.start - settings.num_disparities)
+        sub = dataclasses.replace(camera, width=cols.stop - first, height=rows.stop - rows.start,
+                                  cx=camera.cx - first, cy=camera.cy - rows.start)
+        part = stereo_depth(left[rows, first:cols.stop], right[rows, first:cols.stop], sub,
+                            baseline_m, settings)
+        depth = np.full((camera.height, camera.width), np.nan, np.float32)
+        depth[rows, cols] = part[:, cols.start - first:]
+        return depth
     matcher = _matcher(settings, 1 if left.ndim == 2 else 3)
     pad = settings.num_disparities
     disparity = _disparity(matcher, left, right, pad)

@@ -1,5 +1,6 @@
 """Camera placement: the rating function (eq. 1-4), visibility and search. Free of MuJoCo."""
 
+from .next_best_view import information_gain, look_at
 from .occluders import Hull, above_plane, expand, expanded_hulls, grid_occluders, target_outline
 from .rating import (
     CameraModel,
@@ -46,7 +47,9 @@ __all__ = [
     "expanded_hulls",
     "grid_occluders",
     "hull_depths",
+    "information_gain",
     "line_of_sight",
+    "look_at",
     "rate",
     "rate_best",
     "resolution",

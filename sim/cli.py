@@ -31,6 +31,18 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     run.add_argument("--record-unknown", action="store_true",
                      help="record never-observed voxels too (world/grid/unknown)")
+    sweep = sub.add_parser("sweep", help="run many paired trials into a results database")
+    sweep.add_argument("spec", type=Path, help="sweep TOML file (e.g. scenarios/table1.toml)")
+    sweep.add_argument("--db", type=Path, required=True, help="results database (SQLite)")
+    sweep.add_argument("--trials", type=int, help="paired scenes per density (default: the file's)")
+    sweep.add_argument("--workers", type=int, default=1, help="local worker processes")
+    sweep.add_argument("--scheduler", help="address of a Dask distributed scheduler to run on")
+    sweep.add_argument("--resume", action="store_true",
+                       help="continue the sweep already in --db (finished trials are kept)")
+    rep = sub.add_parser("report", help="Table 1 from a results database")
+    rep.add_argument("db", type=Path, help="results database written by taskcam sweep")
+    rep.add_argument("--out", type=Path,
+                     help="directory for <db>.md, .csv, .png (default: beside the database)")
     fig = sub.add_parser("figure7", help="the paper's Figure 7: RF over a planar world")
     fig.add_argument("--out", type=Path, default=Path("runs/figure7"),
                      help="directory for figure7_a.png, figure7_b.png, figure7.json")
@@ -75,6 +87,47 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def sweep(args: argparse.Namespace) -> int:
+    from .sweep import load_sweep
+
+    spec = load_sweep(args.spec, args.trials)
+    if args.workers < 1:
+        raise ScenarioError("--workers", "workers", args.workers, "an integer >= 1")
+    if args.db.exists() and not args.db.is_file():
+        raise ScenarioError("--db", "db", str(args.db), "a database file (this is a directory)")
+    from .results import ResultsError
+    from .runner import run_sweep
+
+    args.db.parent.mkdir(parents=True, exist_ok=True)
+    where = f"scheduler {args.scheduler}" if args.scheduler else f"{args.workers} worker(s)"
+    _log(f"sweep '{spec.config.name}' ({args.spec}): {spec.config.trials} scenes x "
+         f"{len(spec.config.densities)} densities x {len(spec.config.methods)} methods, on {where}")
+    try:
+        done = run_sweep(spec, args.db, args.workers, args.scheduler, args.resume)
+    except ResultsError as exc:
+        raise ScenarioError("--db", "db", str(args.db), str(exc)) from None
+    _log(f"{done.ran} trial(s) run in {done.seconds:.0f} s, {done.already} found done; "
+         f"{done.already + done.ran} of {done.total} in {args.db}")
+    return EXIT_OK
+
+
+def report(args: argparse.Namespace) -> int:
+    import sqlite3
+
+    from .report import report as tables
+
+    if not args.db.is_file():
+        raise ScenarioError(str(args.db), "<file>", str(args.db), "a results database file")
+    try:
+        out = tables(args.db, args.out)
+    except sqlite3.DatabaseError as exc:
+        raise ScenarioError(str(args.db), "<file>", str(args.db),
+                            f"a database written by taskcam sweep ({exc})") from None
+    print(out["markdown"], end="")
+    _log("wrote " + ", ".join(str(p) for p in out["paths"].values()))
+    return EXIT_OK
+
+
 def figure7(args: argparse.Namespace) -> int:
     from placement.figure7 import figure7 as study
 
@@ -94,6 +147,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "run":
             return run(args)
+        if args.command == "sweep":
+            return sweep(args)
+        if args.command == "report":
+            return report(args)
         if args.command == "figure7":
             return figure7(args)
     except ScenarioError as exc:

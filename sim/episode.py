@@ -33,10 +33,12 @@ import numpy as np
 from calibration import locate_hole
 from calibration.pose import rotation_deg
 from mapping import (
+    GainModel,
     OccupancyGrid,
     Pinhole,
     SensorModel,
     opencv_pose,
+    region_mask,
 )
 from placement import (
     CameraModel,
@@ -45,13 +47,14 @@ from placement import (
     TargetModel,
     Weights,
     biased_random,
+    information_gain,
     search,
     target_points,
 )
 
 from .collision import blocked_rays, robot_points
 from .correction import Correction, PoseCorrector
-from .exploration import Exploration
+from .exploration import Exploration, gain_model
 from .ik import IKResult
 from .motion import ErrorModel, MotionResult, Mover
 from .optics import Lens
@@ -59,7 +62,7 @@ from .planning import ArmPlanner
 from .record import Recorder
 from .render import Renderer, camera_pinhole, camera_pose
 from .scenario import Scenario
-from .scene import Robot, Scene, Target, build_scene
+from .scene import Robot, Scene, Target, build_scene, yaw_quat
 from .sensing import DepthSensor
 from .target_frame import Sighting, common_frame, in_measured_frame, projected_disk, sight
 from .task import Camera, InsertionTask, TaskResult
@@ -100,6 +103,18 @@ class Placement:
     candidates_tried: int = 0  # of them, tried with IK
     rejections: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     unreachable: list[dict[str, Any]] = field(default_factory=list)  # residuals, first few
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What :meth:`Episode.restore` returns to."""
+
+    qpos: np.ndarray
+    ctrl: np.ndarray
+    mocap_pos: np.ndarray
+    mocap_quat: np.ndarray
+    time: float
+    grid: OccupancyGrid
 
 
 def pose_dict(T: np.ndarray) -> dict[str, list[float]]:
@@ -184,6 +199,7 @@ class Episode:
             self.scene: Scene = build_scene(scenario)
         self.nominal = self.scene.model  # what the planner knows
         self.model = copy.deepcopy(self.nominal)  # the simulated world: errors go here
+        self.workpiece_error = self._misplace_workpiece()
         self.data = self.scene.make_data()
         self.belief = self.scene.make_data()  # the commanded configuration
         self.errors = ErrorModel(scenario.motion, self.scene.robots, self.rng)
@@ -192,6 +208,7 @@ class Episode:
         self.recorder = Recorder(None, "")
         self.corrector: PoseCorrector | None = None  # with a renderer, in run()
         self.sightings: list[Sighting] = []  # of the targets, by the placed cameras
+        self.targets: tuple[Target, ...] = self.scene.targets  # the ones placement may use
         self.pinhole = camera_pinhole(self.model, self.scene.robots[0].camera)
         self.step = 0
         cam = scenario.camera
@@ -222,7 +239,7 @@ class Episode:
         """Stage 2 for one robot, given the camera positions already taken: search, plan,
         and move there in the world."""
         s = self.s
-        targets = self.scene.targets
+        targets = self.targets
         belief = self.belief
         keep_out = tuple((tuple(p), s.search.robot_separation_m) for p in taken)
         base = belief.qpos[robot.qpos_adr[:2]]
@@ -241,6 +258,11 @@ class Episode:
         if q.method == "biased_random":
             field_ = biased_random(field_, [target_model(t) for t in targets], self.camera_model,
                                    self.rng, q.random_max_angle_deg)
+        elif q.method == "information_gain":
+            primary = self.scene.primary
+            with self.timer("placement"):
+                field_ = information_gain(field_, targets.index(primary), primary.position,
+                                          self._gain_model(), self.rng, q.gain_samples)
         self.recorder.candidates(robot.name, field_.ratings.positions, field_.ratings.total)
         result = Placement(robot, strategy=field_.strategy, evaluated=field_.evaluated)
         start = belief.qpos.copy()
@@ -259,8 +281,8 @@ class Episode:
             with self.timer("ik"):
                 plan = planner.plan(robot, target.position, position)
             reason = plan.reason
-            if reason is None and blocked_rays(self.nominal, belief, robot,
-                                               target_points(target_model(target))):
+            if reason is None and q.check_sight and blocked_rays(
+                    self.nominal, belief, robot, target_points(target_model(target))):
                 reason = "occluded"
                 self._set_belief(robot, start)
             if reason is not None:
@@ -363,7 +385,7 @@ class Episode:
         if p.commanded_pose is None:
             return rows
         believed = believed_pose(p)
-        for t in self.scene.targets:
+        for t in self.targets:
             found = sight(robot.name, left, right, t, believed, self.pinhole,
                           self.s.camera.baseline_m)
             if found is not None:
@@ -383,26 +405,9 @@ class Episode:
                               [t.radius for t in targets])
         with Renderer(self.model, self.pinhole.width, self.pinhole.height) as renderer:
             mapping = self.map(renderer)
-            self._hold()
-            if self.s.correction.enabled:
-                self.corrector = PoseCorrector(self.scene, self.belief, self.data, renderer,
-                                               self.pinhole, self.s.camera.baseline_m,
-                                               self.grid, self.s.correction)
-            placements: list[Placement] = []
-            taken: list[np.ndarray] = []
-            for robot in self.scene.robots:
-                self._tick()
-                p = self.place(robot, taken)
-                placements.append(p)
-                if p.commanded is not None:
-                    taken.append(p.commanded)
-            robots = self.look(placements, renderer)
-            frame = common_frame(self.sightings, self.scene.targets)
-            task = None
-            if self.s.task.enabled:
-                with self.timer("task"):
-                    task = self.task(placements, frame, renderer).summary()
-        xml, files = self.scene.to_xml(self.data.qpos.copy(), self.mover.mount_overrides())
+            self.hold()
+            robots, frame, task = self.place_and_do(renderer)
+        xml, files = self.scene.to_xml(self.data.qpos.copy(), self.world_bodies())
         self.timer.totals["total"] = time.perf_counter() - t0
         summary = {
             "version": VERSION, "scenario": self.s.name, "seed": self.s.seed,
@@ -410,6 +415,31 @@ class Episode:
             "timings_s": {k: round(v, 4) for k, v in self.timer.totals.items()},
         }
         return summary, xml, files
+
+    def place_and_do(self, renderer: Renderer
+                     ) -> tuple[list[dict[str, Any]], dict[str, Any], dict[str, Any] | None]:
+        """Stages 2-4 on the mapped scene: place every robot in turn, look, and do the
+        task; returns ``summary.json``'s ``robots``, ``target_frame`` and ``task``."""
+        self.corrector = None
+        if self.s.correction.enabled:
+            self.corrector = PoseCorrector(self.scene, self.belief, self.data, renderer,
+                                           self.pinhole, self.s.camera.baseline_m,
+                                           self.grid, self.s.correction)
+        placements: list[Placement] = []
+        taken: list[np.ndarray] = []
+        for robot in self.scene.robots:
+            self._tick()
+            p = self.place(robot, taken)
+            placements.append(p)
+            if p.commanded is not None:
+                taken.append(p.commanded)
+        robots = self.look(placements, renderer)
+        frame = common_frame(self.sightings, self.targets)
+        task = None
+        if self.s.task.enabled:
+            with self.timer("task"):
+                task = self.task(placements, frame, renderer).summary()
+        return robots, frame, task
 
     def task(self, placements: list[Placement], frame: dict[str, Any], renderer: Renderer
              ) -> TaskResult:
@@ -419,7 +449,7 @@ class Episode:
         cameras = [Camera(p.robot, believed_pose(p)) for p in placements
                    if p.commanded_pose is not None]
         slot_cad = self.nominal_slot()
-        slot = in_measured_frame(slot_cad, self.scene.targets, frame)
+        slot = in_measured_frame(slot_cad, self.targets, frame)
         lens = Lens(s.camera.near_m, s.camera.far_m, s.camera.coc_px)
         run = InsertionTask(self.scene, self.model, self.data, renderer, self.pinhole,
                             s.camera.baseline_m, lens, self.grid, s.task, self.rng,
@@ -447,7 +477,38 @@ class Episode:
 
     # ------------------------------------------------------------ helpers
 
-    def _hold(self) -> None:
+    def _misplace_workpiece(self) -> np.ndarray:
+        """Move the work-piece in the world off where the planner believes it (by the
+        scenario's errors); returns (dx, dy, dyaw) in m, m, rad."""
+        w = self.s.workpiece
+        if w.position_error_m == 0 and w.yaw_error_deg == 0:
+            return np.zeros(3)
+        dx, dy = self.rng.normal(0.0, w.position_error_m, 2)
+        dyaw = math.radians(float(self.rng.normal(0.0, w.yaw_error_deg)))
+        body = self.model.body("workpiece/workpiece").id
+        self.model.body_pos[body, :2] += (dx, dy)
+        self.model.body_quat[body] = yaw_quat(math.radians(w.yaw_deg) + dyaw)
+        return np.array([dx, dy, dyaw])
+
+    def world_bodies(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Bodies where the world has them, not the plan (pos, quat relative to their
+        parent frame in the scene's spec): the arms' mounts and the work-piece."""
+        bodies = self.mover.mount_overrides()
+        dx, dy, dyaw = self.workpiece_error
+        if dx or dy or dyaw:
+            back = -math.radians(self.s.workpiece.yaw_deg)  # into the work-piece's frame
+            c, s = math.cos(back), math.sin(back)
+            bodies["workpiece/workpiece"] = (np.array([c * dx - s * dy, s * dx + c * dy, 0.0]),
+                                   np.array(yaw_quat(dyaw)))
+        return bodies
+
+    def _gain_model(self) -> GainModel:
+        """Expected information about the target region, as mapping measures it."""
+        interest = region_mask(self.grid, self.scene.primary.position,
+                               np.array(self.s.mapping.region_half_m))
+        return gain_model(self.s, self.grid, self.pinhole, interest)
+
+    def hold(self) -> None:
         """After mapping's kinematic moves: the actuators hold where the robots are, and
         the planner knows it (no error has been made yet)."""
         self.data.ctrl[:] = self.scene.ctrl_for(self.data.qpos)
@@ -455,6 +516,31 @@ class Episode:
         mujoco.mj_forward(self.model, self.data)
         self.belief.qpos[:] = self.data.qpos
         mujoco.mj_forward(self.nominal, self.belief)
+
+    def snapshot(self) -> Snapshot:
+        """The world, the plan and the map as they are now (after mapping, say), for
+        :meth:`restore` to start another method from."""
+        d = self.data
+        return Snapshot(d.qpos.copy(), d.ctrl.copy(), d.mocap_pos.copy(), d.mocap_quat.copy(),
+                        float(d.time), copy.deepcopy(self.grid))
+
+    def restore(self, snap: Snapshot, rng: np.random.Generator) -> None:
+        """Back to ``snap``, at rest, drawing from ``rng`` from now on (the robots'
+        calibration errors are drawn afresh from it)."""
+        d = self.data
+        d.qpos[:], d.ctrl[:], d.time = snap.qpos, snap.ctrl, snap.time
+        d.mocap_pos[:], d.mocap_quat[:] = snap.mocap_pos, snap.mocap_quat
+        d.qvel[:] = 0.0
+        d.act[:] = 0.0
+        for robot in self.scene.robots:
+            self.mover.tilt(robot, 0.0, 0.0, forward=False)
+        mujoco.mj_forward(self.model, d)
+        self.belief.qpos[:] = snap.qpos
+        mujoco.mj_forward(self.nominal, self.belief)
+        self.grid = copy.deepcopy(snap.grid)
+        self.rng = rng
+        self.errors = ErrorModel(self.s.motion, self.scene.robots, rng)
+        self.sightings = []
 
     def _set_belief(self, robot: Robot, qpos: np.ndarray) -> None:
         self.scene.set_robot(self.belief, robot, qpos)

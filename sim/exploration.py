@@ -46,6 +46,15 @@ REACH_M = (0.35, 1.0)  # camera distance from the shoulder (UR5e reach about 0.8
 CLOSE_ENOUGH_M = 0.05  # a candidate counts as reached within this of where it was sampled
 
 
+def gain_model(s: Scenario, grid: OccupancyGrid, pinhole: Pinhole, interest: np.ndarray
+               ) -> GainModel:
+    """Expected information of views about the voxels of ``interest``, as the scenario's
+    mapping measures it."""
+    m = s.mapping
+    return GainModel(grid, pinhole, interest, s.grid.max_range_m, m.gain_stride,
+                     m.unknown_occupancy, s.rating.free_threshold)
+
+
 @dataclass(frozen=True)
 class Candidate:
     robot: Robot
@@ -136,8 +145,7 @@ class Exploration:
 
     def choose_round(self, robots: tuple[Robot, ...]) -> list[_Chosen]:
         m = self.s.mapping
-        model = GainModel(self.grid, self.pinhole, self.interest, self.s.grid.max_range_m,
-                          m.gain_stride, m.unknown_occupancy, self.s.rating.free_threshold)
+        model = gain_model(self.s, self.grid, self.pinhole, self.interest)
         chosen = []
         for robot in robots:
             options = self.candidates(robot)

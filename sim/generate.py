@@ -18,7 +18,7 @@ import numpy as np
 
 from placement.density import Primitive, occlusion_density
 
-from .scenario import ObstacleConfig
+from .scenario import ObstacleConfig, Scenario
 
 TOLERANCE = 0.02  # the achieved density is within this of the request
 AIM = 0.005  # drawing stops this close below the request
@@ -32,6 +32,14 @@ class KeepOut:
     x: float
     y: float
     radius: float
+
+
+def keep_outs(s: Scenario) -> list[KeepOut]:
+    """Where a scenario's obstacles must not stand: the work-piece (0.55 m about its
+    centre), the panel where it lies (0.25 m: its way to the slot is then within these
+    two) and each robot's base (0.7 m: room to turn and reach)."""
+    return [KeepOut(*s.workpiece.position, 0.55), KeepOut(*s.panel.position[:2], 0.25),
+            *[KeepOut(b.x, b.y, 0.7) for b in s.base_poses()]]
 
 
 def primitive(o: ObstacleConfig) -> Primitive:

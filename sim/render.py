@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from types import TracebackType
 
 import mujoco
@@ -35,13 +36,15 @@ def far_plane(model: mujoco.MjModel) -> float:
 class Renderer:
     """Offscreen renderer for cameras of one resolution. Use as a context manager.
 
-    A renderer belongs to the thread that made it.
+    A renderer belongs to the thread that made it. ``seconds`` is the wall time it has
+    spent rendering.
     """
 
     def __init__(self, model: mujoco.MjModel, width: int, height: int) -> None:
         self.model = model
         self._renderer: mujoco.Renderer | None = mujoco.Renderer(model, height, width)
         self._sky = 0.999 * far_plane(model)
+        self.seconds = 0.0
 
     def __enter__(self) -> Renderer:
         return self
@@ -61,19 +64,24 @@ class Renderer:
             raise RuntimeError("renderer is closed")
         return self._renderer
 
-    def rgb(self, data: mujoco.MjData, camera: str) -> np.ndarray:
-        """RGB image (h, w, 3) uint8, row 0 at the top."""
+    def _render(self, data: mujoco.MjData, camera: str) -> np.ndarray:
+        start = time.perf_counter()
         r = self._r
         r.update_scene(data, camera)
-        return r.render().copy()
+        image = r.render().copy()
+        self.seconds += time.perf_counter() - start
+        return image
+
+    def rgb(self, data: mujoco.MjData, camera: str) -> np.ndarray:
+        """RGB image (h, w, 3) uint8, row 0 at the top."""
+        return self._render(data, camera)
 
     def depth(self, data: mujoco.MjData, camera: str) -> np.ndarray:
         """Metric z-depth (h, w) float32 along the optical axis; ``inf`` where nothing was hit."""
         r = self._r
         r.enable_depth_rendering()
         try:
-            r.update_scene(data, camera)
-            depth = r.render().copy()
+            depth = self._render(data, camera)
         finally:
             r.disable_depth_rendering()
         depth[depth >= self._sky] = np.inf
@@ -84,8 +92,7 @@ class Renderer:
         r = self._r
         r.enable_segmentation_rendering()
         try:
-            r.update_scene(data, camera)
-            seg = r.render().copy()
+            seg = self._render(data, camera)
         finally:
             r.disable_segmentation_rendering()
         ids = seg[..., 0].astype(np.int32)

@@ -109,6 +109,10 @@ class WorkpieceConfig:
     position: tuple[float, float] = (0.0, 0.0)  # floor position of the plate centre (m)
     yaw_deg: float = 0.0
     targets: tuple[TargetConfig, ...] = field(default_factory=_default_targets)
+    # Where the work-piece really stands, off where the planner believes (standard
+    # deviations, drawn per episode): only the cameras' sightings of the targets reveal it.
+    position_error_m: float = _nonnegative(0.0)  # x and y each
+    yaw_error_deg: float = _nonnegative(0.0)
 
 
 @dataclass(frozen=True)
@@ -194,9 +198,14 @@ class RatingConfig:
 
 @dataclass(frozen=True)
 class SearchConfig:
-    # the placement method: the rating function, or the paper's biased random baseline
-    method: Literal["rating", "biased_random"] = "rating"
+    # the placement method: the rating function, the paper's biased random baseline, or
+    # next-best-view by expected information gain about the target region
+    method: Literal["rating", "biased_random", "information_gain"] = "rating"
     random_max_angle_deg: float = _check(lambda v: 0 < v <= 90, "degrees in (0, 90]", 60.0)
+    gain_samples: int = _check(lambda v: v >= 1, "an integer >= 1", 300)  # information_gain
+    # reject a candidate when the nominal scene's geometry hides its target (an oracle:
+    # off, each method knows only what its own model tells it)
+    check_sight: bool = True
     strategy: Literal["exhaustive", "coarse", "bounded", "random"] = "exhaustive"
     coarse_step: int = _check(lambda v: 1 <= v <= 16, "an integer 1 to 16", 2)
     max_distance_m: float = _positive(1.0)  # for "bounded": from the nearest target

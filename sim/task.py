@@ -37,7 +37,7 @@ import numpy as np
 
 from mapping import BoxModel, OccupancyGrid, Pinhole, fit_model, move_object, opencv_pose
 from mapping.cad import to_object
-from mapping.stereo import stereo_depth
+from mapping.stereo import StereoSettings, stereo_depth
 
 from .optics import Lens, defocus
 from .record import Recorder
@@ -50,6 +50,8 @@ MAX_FIT_MEDIAN_M = 0.004  # a fit is good when half the points are this close to
 MIN_ON_MODEL = 0.6  # ... and this many within 1 cm
 MAX_POINTS_PER_CAMERA = 3000
 STEP_S = 1.0  # simulated time per steering step, for the recording
+WINDOW_MARGIN_PX = 48  # around the panel: its blur (3 sigma of the widest level) and more
+SETTINGS = StereoSettings()
 
 
 @dataclass
@@ -107,6 +109,16 @@ def panel_model(model: mujoco.MjModel) -> BoxModel:
     geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body
              and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
     return BoxModel(model.geom_pos[geoms].copy(), model.geom_size[geoms].copy())
+
+
+def _window(mask: np.ndarray) -> tuple[slice, slice]:
+    """Rows and columns around ``mask``'s pixels, with room for the blur and stereo
+    matching's blocks."""
+    ys, xs = np.nonzero(mask)
+    h, w = mask.shape
+    margin = WINDOW_MARGIN_PX
+    return (slice(max(0, ys.min() - margin), min(h, ys.max() + margin + 1)),
+            slice(max(0, xs.min() - margin), min(w, xs.max() + margin + 1)))
 
 
 def panel_mask(rgb: np.ndarray) -> np.ndarray:
@@ -185,12 +197,24 @@ class InsertionTask:
     def _panel_points(self, cam: Camera) -> np.ndarray | str:
         """World points of the panel in one camera's view, or why there are none."""
         r, d, robot = self.renderer, self.data, cam.robot
-        left = defocus(r.rgb(d, robot.camera), r.depth(d, robot.camera), self.lens)
-        mask = panel_mask(left)
+        sharp = r.rgb(d, robot.camera)
+        near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
+        if near.sum() < MIN_POINTS:
+            return "panel not in view (occluded or outside the image)"
+        rows, around = _window(near)
+        cols = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
+        left = np.zeros_like(sharp)
+        left[rows, cols] = defocus(sharp[rows, cols], r.depth(d, robot.camera)[rows, cols],
+                                   self.lens)
+        right = np.zeros_like(sharp)
+        right[rows, cols] = defocus(r.rgb(d, robot.right_camera)[rows, cols],
+                                    r.depth(d, robot.right_camera)[rows, cols], self.lens)
+        mask = np.zeros_like(near)
+        mask[rows, cols] = panel_mask(left[rows, cols])
         if mask.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
-        right = defocus(r.rgb(d, robot.right_camera), r.depth(d, robot.right_camera), self.lens)
-        depth = stereo_depth(left, right, self.pinhole, self.baseline_m)
+        depth = stereo_depth(left, right, self.pinhole, self.baseline_m, SETTINGS,
+                             (rows, around))
         v, u = np.nonzero(mask & np.isfinite(depth))
         if len(v) < MIN_POINTS // 2:
             return "no stereo depth on the panel"

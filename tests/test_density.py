@@ -12,7 +12,7 @@ import pytest
 
 from placement.density import Primitive, hemisphere, occlusion_density, ray_hits
 from sim import load_scenario
-from sim.generate import KeepOut, footprint, generate, primitive
+from sim.generate import KeepOut, footprint, generate, keep_outs, primitive
 from sim.scene import build_scene
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -70,8 +70,7 @@ def test_generated_scenes_reach_the_requested_density(request_):
     s = load_scenario()
     scene = build_scene(s)
     target = scene.primary
-    keep = [KeepOut(0.0, 0.0, 0.55), KeepOut(-0.15, 0.6, 0.25),
-            *[KeepOut(b.x, b.y, 0.7) for b in s.base_poses()]]
+    keep = keep_outs(s)
     for seed in range(3):
         obstacles, density = generate(request_, target.position, target.normal, s.camera.far_m,
                                       keep, np.random.default_rng(seed))

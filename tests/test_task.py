@@ -129,7 +129,8 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch):
     monkeypatch.setattr(task_module.InsertionTask, "_panel_points", blind)
     summary, _, _ = Episode(s).run()
     task = summary["task"]
-    assert [r["robot"] for r in task["replacements"]] == ["r1"]
+    robots = [r["robot"] for r in task["replacements"]]
+    assert robots[0] == "r1" and robots.count("r1") == 1  # r2 alone may lose it later
     again = task["replacements"][0]
     assert again["step"] == 2 and "3 steps running" in again["reason"]
     assert again["placed"] and len(again["candidate_position"]) == 3

@@ -1,0 +1,202 @@
+"""Tables from a results database: success rates with Wilson 95 % intervals, in the
+layout of the paper's Table 1 (tolerance by placement, density by secondary targets),
+next to the paper's numbers; as Markdown, CSV and a PNG chart."""
+
+from __future__ import annotations
+
+import csv
+import math
+import sqlite3
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .results import Results
+
+Z95 = 1.959963984540054
+
+# The paper's Table 1 (%): (placement, secondary, density, tolerance) -> success; "<<1"
+# where it prints that.
+PAPER: dict[tuple[str, bool, float, float], str] = {}
+_TABLE1: dict[float, dict[str, tuple[tuple[int | str, int | str], ...]]] = {
+    0.2: {"rating": ((100, 100), (76, 95), (13, 25)),
+          "biased_random": ((45, 58), (16, 28), (5, 9))},
+    0.1: {"rating": ((99, 100), (63, 86), (10, 18)),
+          "biased_random": ((23, 30), (8, 15), (3, 4))},
+    0.01: {"rating": ((97, 99), (30, 52), (3, 7)),
+           "biased_random": ((1, 1), ("<<1", "<<1"), ("<<1", "<<1"))},
+}
+for _tol, _rows in _TABLE1.items():
+    for _placement, _cells in _rows.items():
+        for _density, (_without, _with) in zip((0.05, 0.2, 0.35), _cells, strict=True):
+            PAPER[(_placement, False, _density, _tol)] = str(_without)
+            PAPER[(_placement, True, _density, _tol)] = str(_with)
+
+NAMES = {"rating": "Optimal (rating function)", "biased_random": "Biased random",
+         "information_gain": "Next best view (information gain)"}
+DIFFICULTY = {0.2: "easy", 0.1: "medium", 0.01: "hard"}
+
+
+def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (fractions)."""
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One method at one density and tolerance."""
+
+    method: str
+    placement: str
+    secondary: bool
+    density: float  # requested
+    achieved_density: float  # mean over the trials
+    tolerance: float
+    trials: int
+    successes: int
+
+    @property
+    def rate(self) -> float:
+        return self.successes / self.trials if self.trials else math.nan
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        return wilson(self.successes, self.trials)
+
+    @property
+    def paper(self) -> str | None:
+        return PAPER.get((self.placement, self.secondary, round(self.density, 4),
+                          self.tolerance))
+
+
+def cells(db: str | Path) -> list[Cell]:
+    """Success counts per method, density and tolerance, from the database."""
+    with Results(db) as results:
+        description = results.description()
+        if description is None:
+            raise sqlite3.DatabaseError(f"{db} holds no sweep")
+        densities = description["sweep"]["densities"]
+        achieved = dict(results.db.execute(
+            "SELECT density_index, AVG(achieved_density) FROM trials GROUP BY density_index"))
+        rows = results.db.execute(
+            "SELECT o.method, o.placement, o.secondary, s.density_index, s.tolerance, "
+            "COUNT(*), SUM(s.success) FROM successes s JOIN outcomes o USING "
+            "(density_index, trial, method) GROUP BY o.method, s.density_index, s.tolerance")
+        order = {m["name"]: i for i, m in enumerate(description["sweep"]["methods"])}
+        out = [Cell(method, placement, bool(secondary), densities[d], achieved[d], tol, n, ok)
+               for method, placement, secondary, d, tol, n, ok in rows]
+    return sorted(out, key=lambda c: (-c.tolerance, order.get(c.method, 99), c.density))
+
+
+def _percent(c: Cell) -> str:
+    lo, hi = c.interval
+    return f"{100 * c.rate:.0f} [{100 * lo:.0f}-{100 * hi:.0f}]"
+
+
+def markdown(table: list[Cell]) -> str:
+    """Table 1's layout: a block per tolerance, a row per placement, a column per density
+    and secondary targets; each cell ours % [Wilson 95 %] (paper %)."""
+    densities = sorted({c.density for c in table})
+    by_key: dict[tuple[float, str, float, bool], Cell] = {}
+    extra = []
+    for c in table:
+        key = (c.tolerance, c.placement, c.density, c.secondary)
+        if key in by_key:
+            extra.append(c)  # a second method with the same placement: listed below
+        else:
+            by_key[key] = c
+    placements = list(dict.fromkeys(c.placement for c in table))
+    n = sorted({c.trials for c in table})
+    scenes = f"{n[0]}" if len(n) == 1 else f"{n[0]}-{n[-1]}"
+    head = ["Tolerance", "Placement"] + [f"{100 * d:g} % {'with' if w else 'without'} sec."
+                                         for d in densities for w in (False, True)]
+    lines = [f"Success % [Wilson 95 % interval] (paper's %), {scenes} paired scenes per density",
+             "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for tol in sorted({c.tolerance for c in table}, reverse=True):
+        for placement in placements:
+            row = [f"{100 * tol:g} % ({DIFFICULTY.get(tol, '')})", NAMES.get(placement, placement)]
+            for d in densities:
+                for with_secondary in (False, True):
+                    cell = by_key.get((tol, placement, d, with_secondary))
+                    if cell is None:
+                        row.append("-")
+                    else:
+                        paper = f" ({cell.paper})" if cell.paper is not None else ""
+                        row.append(_percent(cell) + paper)
+            lines.append("| " + " | ".join(row) + " |")
+    achieved = {c.density: c.achieved_density for c in table}
+    lines += ["", "Occlusion density achieved (mean): " + ", ".join(
+        f"{100 * d:g} % -> {100 * achieved[d]:.1f} %" for d in densities)]
+    if extra:
+        lines += ["", "Further methods: " + "; ".join(
+            f"{c.method} at {100 * c.density:g} %, {100 * c.tolerance:g} %: {_percent(c)}"
+            for c in extra)]
+    return "\n".join(lines) + "\n"
+
+
+def write_csv(table: list[Cell], path: Path) -> None:
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["method", "placement", "secondary", "density", "achieved_density",
+                    "tolerance", "trials", "successes", "success_pct", "wilson_low_pct",
+                    "wilson_high_pct", "paper_pct"])
+        for c in table:
+            lo, hi = c.interval
+            w.writerow([c.method, c.placement, int(c.secondary), c.density,
+                        round(c.achieved_density, 5), c.tolerance, c.trials, c.successes,
+                        round(100 * c.rate, 2), round(100 * lo, 2), round(100 * hi, 2),
+                        c.paper or ""])
+
+
+def write_chart(table: list[Cell], path: Path) -> None:
+    """Success rate against density, a panel per tolerance, a line per method, with the
+    Wilson intervals as error bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tolerances = sorted({c.tolerance for c in table}, reverse=True)
+    fig, axes = plt.subplots(1, len(tolerances), figsize=(4.2 * len(tolerances), 3.6),
+                             sharey=True, squeeze=False)
+    series: dict[str, list[Cell]] = defaultdict(list)
+    for c in table:
+        series[c.method].append(c)
+    for ax, tol in zip(axes[0], tolerances, strict=True):
+        for method, cs in series.items():
+            pts = sorted((c for c in cs if c.tolerance == tol), key=lambda c: c.density)
+            x = [100 * c.density for c in pts]
+            y = [100 * c.rate for c in pts]
+            err = [[100 * (c.rate - c.interval[0]) for c in pts],
+                   [100 * (c.interval[1] - c.rate) for c in pts]]
+            ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=method)
+        ax.set_title(f"tolerance {100 * tol:g} % ({DIFFICULTY.get(tol, '')})")
+        ax.set_xlabel("occlusion density (%)")
+        ax.set_ylim(-3, 103)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("task success (%)")
+    axes[0][-1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:
+    """Write ``<db stem>.md``, ``.csv`` and ``.png`` into ``out`` (default: beside the
+    database); returns the Markdown and the paths."""
+    db = Path(db)
+    table = cells(db)
+    folder = Path(out) if out is not None else db.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    text = markdown(table)
+    paths = {ext: folder / f"{db.stem}.{ext}" for ext in ("md", "csv", "png")}
+    paths["md"].write_text(text)
+    write_csv(table, paths["csv"])
+    write_chart(table, paths["png"])
+    return {"markdown": text, "paths": paths}

@@ -1,0 +1,106 @@
+"""Running a sweep's trials: in this process, on a local process pool, or on a Dask
+distributed cluster; each finished trial is stored at once (one transaction), so an
+interrupted sweep resumes where it stopped, without losing or repeating a trial.
+
+Trials are independent and seeded by their own indices (sim/sweep.py), so the stored
+rows are the same whichever worker ran which trial, and in whatever order they ended.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from collections.abc import Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from contextlib import suppress
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from .results import Results
+from .sweep import Sweep
+from .trial import TrialSpec, run_trial
+
+
+@dataclass(frozen=True)
+class SweepRun:
+    """What a call to :func:`run_sweep` did."""
+
+    total: int  # trials in the sweep
+    already: int  # stored before this call
+    ran: int  # finished and stored by this call
+    seconds: float
+
+
+def trial_specs(sweep: Sweep) -> list[TrialSpec]:
+    """Every trial of the sweep, density by density."""
+    c = sweep.config
+    return [TrialSpec(sweep.scenario, c.methods, i, density, k, sweep.trial_seed(i, k))
+            for i, density in enumerate(c.densities) for k in range(c.trials)]
+
+
+def _worker_init() -> None:
+    import sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
+
+
+def _local(specs: list[TrialSpec], workers: int) -> Iterator[dict[str, Any]]:
+    if workers == 1:
+        for spec in specs:
+            yield run_trial(spec)
+        return
+    context = multiprocessing.get_context("spawn")  # no GL context or renderer is inherited
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
+        pending: set[Future[dict[str, Any]]] = set()
+        queue = iter(specs)
+        try:
+            for spec in queue:  # keep a few trials per worker queued, not all of them
+                pending.add(pool.submit(run_trial, spec))
+                if len(pending) >= 2 * workers:
+                    break
+            while pending:
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    yield future.result()
+                    spec_next = next(queue, None)
+                    if spec_next is not None:
+                        pending.add(pool.submit(run_trial, spec_next))
+        finally:
+            for future in pending:
+                future.cancel()
+
+
+def _dask(specs: list[TrialSpec], address: str) -> Iterator[dict[str, Any]]:
+    from distributed import Client, as_completed
+
+    with Client(address) as client:
+        futures = client.map(run_trial, specs, pure=False)
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        finally:
+            with suppress(Exception):
+                client.cancel(futures)
+
+
+def run_sweep(sweep: Sweep, db: str | Path, workers: int = 1, scheduler: str | None = None,
+              resume: bool = False, progress: bool | None = None) -> SweepRun:
+    """Run the sweep's trials not yet in ``db`` and store each as it finishes.
+    ``progress`` None shows the bar only on a terminal."""
+    start = time.perf_counter()
+    with Results(db) as results:
+        results.start(sweep.describe(), resume)
+        done = results.done()
+        every = trial_specs(sweep)
+        specs = [t for t in every if (t.density_index, t.trial) not in done]
+        total, already = len(every), len(every) - len(specs)
+        records = _dask(specs, scheduler) if scheduler else _local(specs, workers)
+        ran = 0
+        with tqdm(total=total, initial=already, unit="trial", disable=None if progress is None
+                  else not progress, dynamic_ncols=True, smoothing=0.1) as bar:
+            for record in records:
+                results.add(record)
+                ran += 1
+                bar.update()
+    return SweepRun(total, already, ran, time.perf_counter() - start)

@@ -1,0 +1,140 @@
+"""Sweep files: many paired trials over occlusion densities, for tables like Table 1.
+
+A sweep file (TOML) names a base scenario, the occlusion densities to generate scenes
+at, the placement methods to compare on each scene, and overrides of the base
+scenario's tables (e.g. a smaller camera image, to make trials cheaper)::
+
+    name = "table1"
+    scenario = "default.toml"   # relative to the sweep file, or the packaged scenarios
+    seed = 0
+    trials = 300                # paired scenes per density
+    densities = [0.05, 0.20, 0.35]
+
+    [[methods]]
+    name = "optimal"
+    placement = "rating"        # or "biased_random", "information_gain"
+    secondary = true            # may the method use secondary targets?
+
+    [overrides.camera]          # merged into the base scenario
+    width = 320
+
+Trial ``k`` at density ``i`` is seeded from (``seed``, ``i``, ``k``) alone, so a trial
+gives the same result whichever worker runs it, in whatever order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from .scenario import SCENARIO_DIR, Scenario, ScenarioError, _build, _check, parse_scenario
+
+Placement = Literal["rating", "biased_random", "information_gain"]
+
+
+@dataclass(frozen=True)
+class MethodConfig:
+    """A placement method, run on every scene of the sweep."""
+
+    name: str = _check(lambda v: v.replace("_", "").isalnum(), "letters, digits and _",
+                       "optimal")
+    placement: Placement = "rating"
+    secondary: bool = True  # may it place cameras for secondary targets, and use them?
+
+
+def _paper_methods() -> tuple[MethodConfig, ...]:
+    return (MethodConfig("optimal", "rating", True),
+            MethodConfig("optimal_primary", "rating", False),
+            MethodConfig("random", "biased_random", True),
+            MethodConfig("random_primary", "biased_random", False),
+            MethodConfig("nbv", "information_gain", False))
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    name: str = "sweep"
+    scenario: str = "default.toml"  # the base scenario
+    seed: int = _check(lambda v: v >= 0, "an integer >= 0", 0)
+    trials: int = _check(lambda v: v >= 1, "an integer >= 1", 300)  # per density
+    densities: tuple[float, ...] = _check(
+        lambda v: len(v) >= 1 and all(0 <= d < 0.9 for d in v),
+        "a non-empty list of fractions in [0, 0.9)", (0.05, 0.2, 0.35))
+    methods: tuple[MethodConfig, ...] = _check(
+        lambda v: len(v) >= 1 and len({m.name for m in v}) == len(v),
+        "a non-empty list of methods with unique names", default_factory=_paper_methods)
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A sweep file, read: its settings and the base scenario with the overrides."""
+
+    config: SweepConfig
+    scenario: Scenario
+    source: str
+
+    def trial_seed(self, density_index: int, trial: int) -> int:
+        """The scenario seed of trial ``trial`` at density ``density_index``."""
+        state = np.random.SeedSequence([self.config.seed, density_index, trial])
+        return int(state.generate_state(1)[0])
+
+    def describe(self) -> dict[str, Any]:
+        """What the results depend on (stored with them, checked on resume)."""
+        return {"sweep": dataclasses.asdict(self.config),
+                "scenario": dataclasses.asdict(dataclasses.replace(self.scenario, source=""))}
+
+
+def _merge(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in overrides.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        return tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ScenarioError(str(path), "<file>", str(path),
+                            f"a readable TOML file ({exc.strerror})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(str(path), "<syntax>", str(exc), "valid TOML") from None
+
+
+def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
+    """Read a sweep file; ``trials`` overrides its trials per density. Raises
+    ScenarioError naming the file and key of anything invalid."""
+    path = Path(path)
+    data = _read_toml(path)
+    overrides = data.pop("overrides", {})
+    if not isinstance(overrides, Mapping):
+        raise ScenarioError(str(path), "overrides", overrides,
+                            "a table of scenario tables to override")
+    data.setdefault("name", path.stem)
+    config: SweepConfig = _build(SweepConfig, data, "", str(path))
+    if trials is not None:
+        if trials < 1:
+            raise ScenarioError("--trials", "trials", trials, "an integer >= 1")
+        config = dataclasses.replace(config, trials=trials)
+    base_path = path.parent / config.scenario
+    if not base_path.exists() and (SCENARIO_DIR / config.scenario).exists():
+        base_path = SCENARIO_DIR / config.scenario
+    if not base_path.exists():
+        raise ScenarioError(str(path), "scenario", config.scenario,
+                            f"a scenario file beside the sweep file or in {SCENARIO_DIR.name}/")
+    base = _read_toml(base_path)
+    base.setdefault("name", base_path.stem)
+    parse_scenario(base, str(base_path))  # the base file's own errors name it
+    source = f"{path} [overrides]"
+    scenario = parse_scenario(_merge(base, {**overrides, "obstacles": []}), source)
+    if not scenario.task.enabled:
+        raise ScenarioError(source, "task.enabled", False, "true: a sweep judges the task")
+    return Sweep(config, scenario, str(path))
