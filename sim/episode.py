@@ -19,6 +19,7 @@ world (``model``, ``data``) holds the truth, which only the evaluation reads.
 from __future__ import annotations
 
 import copy
+import hashlib
 import math
 import time
 from collections import defaultdict
@@ -42,6 +43,7 @@ from mapping import (
 )
 from placement import (
     CameraModel,
+    RatingField,
     Region,
     SearchSettings,
     TargetModel,
@@ -209,6 +211,7 @@ class Episode:
         self.corrector: PoseCorrector | None = None  # with a renderer, in run()
         self.sightings: list[Sighting] = []  # of the targets, by the placed cameras
         self.targets: tuple[Target, ...] = self.scene.targets  # the ones placement may use
+        self._fields: dict[tuple[object, ...], RatingField] = {}  # searched, by question
         self.pinhole = camera_pinhole(self.model, self.scene.robots[0].camera)
         self.step = 0
         cam = scenario.camera
@@ -251,10 +254,17 @@ class Episode:
                                   cone=r.expansion == "cone")
         others = [pts for other in self.scene.robots if other is not robot
                   for pts in robot_points(self.nominal, belief, other)]
-        with self.timer("placement"):
-            field_ = search(self.grid, [target_model(t) for t in targets], self.camera_model,
-                            Weights(r.alpha, r.beta, r.gamma, r.delta), r.free_threshold,
-                            region, settings, self.rng, others)
+        # The same question gets the same answer: methods started from one mapped state
+        # share their first robot's rating field (a deterministic search draws nothing).
+        key = (robot.name, tuple(t.name for t in targets), keep_out, belief.qpos.tobytes(),
+               hashlib.sha1(self.grid.log_odds.tobytes()).hexdigest())
+        field_ = self._fields.get(key) if q.strategy != "random" else None
+        if field_ is None:
+            with self.timer("placement"):
+                field_ = search(self.grid, [target_model(t) for t in targets],
+                                self.camera_model, Weights(r.alpha, r.beta, r.gamma, r.delta),
+                                r.free_threshold, region, settings, self.rng, others)
+            self._fields[key] = field_
         if q.method == "biased_random":
             field_ = biased_random(field_, [target_model(t) for t in targets], self.camera_model,
                                    self.rng, q.random_max_angle_deg)

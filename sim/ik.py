@@ -58,6 +58,9 @@ class IKSettings:
     orientation_tolerance_deg: float = 0.05
     posture_cost: float = 1e-3
     damping: float = 1e-4
+    # give up when this many iterations gained less than a tolerance on both errors: a
+    # pose out of reach stalls against the limits long before max_iterations
+    stall_iterations: int = 40
 
 
 def solve_camera_pose(
@@ -127,8 +130,17 @@ def solve_camera_pose(
         errors = camera_errors(model, config.data, site, position, look_at)
         path.append(config.q[robot.qpos_adr].copy())
         history.append(errors)
+        if iterations >= settings.stall_iterations and _stalled(
+                history[-1 - settings.stall_iterations], errors, settings):
+            break
     return IKResult(config.q.copy(), errors[0], errors[1], iterations, _within(errors, settings),
                     np.array(path), np.array(history), time.perf_counter() - started)
+
+
+def _stalled(before: tuple[float, float], now: tuple[float, float],
+             settings: IKSettings) -> bool:
+    return (before[0] - now[0] < settings.position_tolerance_m
+            and before[1] - now[1] < settings.orientation_tolerance_deg)
 
 
 def _within(errors: tuple[float, float], settings: IKSettings) -> bool:

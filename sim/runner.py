@@ -8,7 +8,9 @@ rows are the same whichever worker ran which trial, and in whatever order they e
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
+import signal
 import time
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -23,6 +25,8 @@ from .results import Results
 from .sweep import Sweep
 from .trial import TrialSpec, run_trial
 
+PR_SET_PDEATHSIG = 1  # prctl option: the signal a process gets when its parent dies
+
 
 @dataclass(frozen=True)
 class SweepRun:
@@ -35,13 +39,18 @@ class SweepRun:
 
 
 def trial_specs(sweep: Sweep) -> list[TrialSpec]:
-    """Every trial of the sweep, density by density."""
+    """Every trial of the sweep, the densities interleaved (a partial sweep covers all)."""
     c = sweep.config
     return [TrialSpec(sweep.scenario, c.methods, i, density, k, sweep.trial_seed(i, k))
-            for i, density in enumerate(c.densities) for k in range(c.trials)]
+            for k in range(c.trials) for i, density in enumerate(c.densities)]
 
 
 def _worker_init() -> None:
+    """A local worker: dies with the sweep that started it (on Linux), even killed -9,
+    rather than finish a trial nobody will store."""
+    with suppress(OSError, AttributeError):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     import sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
 
 

@@ -50,6 +50,7 @@ MAX_FIT_MEDIAN_M = 0.004  # a fit is good when half the points are this close to
 MIN_ON_MODEL = 0.6  # ... and this many within 1 cm
 MAX_POINTS_PER_CAMERA = 3000
 STEP_S = 1.0  # simulated time per steering step, for the recording
+OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)
 WINDOW_MARGIN_PX = 48  # around the panel: its blur (3 sigma of the widest level) and more
 SETTINGS = StereoSettings()
 
@@ -247,6 +248,7 @@ class InsertionTask:
         guess = lying.copy()  # the carry keeps the orientation it was picked up with
         guess[:3, 3] = slot + above  # where the carrier believes it put the panel
         moved_from = lying
+        descending = False
         for step in range(cfg.max_steps):
             result.steps = step + 1
             t = t0 + 2.0 + STEP_S * step
@@ -278,8 +280,10 @@ class InsertionTask:
                 result.stopped_by = "measured displacement below stop_m"
                 break
             target = slot.copy()
-            if np.linalg.norm(displacement[:2]) > 0.005:  # not over the slot yet: stay above
-                target[2] += cfg.approach_m
+            if not descending and np.linalg.norm(displacement[:2]) > OVER_SLOT_M:
+                target[2] += cfg.approach_m  # not over the slot yet: stay above it
+            else:
+                descending = True  # once on its way down it is not lifted again
             step_vec = cfg.gain * (target - pose[:3, 3])
             length = float(np.linalg.norm(step_vec))
             if length > cfg.max_step_m:

@@ -1,0 +1,231 @@
+"""Sweeps: resumable after kill -9, the same rows whatever runs them, clear errors for bad
+sweep files, trials that pair their methods, and reports that count right."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from sim.cli import main
+from sim.report import cells, markdown, report, wilson
+from sim.results import Results
+from sim.runner import run_sweep, trial_specs
+from sim.sweep import load_sweep
+from sim.trial import run_trial
+
+# Small and quick: one-third-size images, four mapping views, a three-step task.
+TINY = """
+name = "tiny"
+scenario = "default.toml"
+seed = 7
+trials = 2
+densities = [0.05, 0.2]
+
+[[methods]]
+name = "optimal"
+placement = "rating"
+
+[[methods]]
+name = "random"
+placement = "biased_random"
+
+[overrides.camera]
+width = 320
+height = 240
+
+[overrides.mapping]
+max_views = 4
+
+[overrides.workpiece]
+position_error_m = 0.01
+yaw_error_deg = 2.0
+
+[overrides.search]
+check_sight = false
+ik_candidates = 4
+camera_z_m = [0.4, 1.3]
+reach_m = 1.0
+
+[overrides.motion]
+joint_offset_deg = 0.0
+joint_noise_deg = 0.0
+base_offset_m = 0.0
+base_yaw_deg = 0.0
+suspension_deg = 0.0
+settle_s = 0.2
+
+[overrides.correction]
+enabled = false
+
+[overrides.task]
+gain = 1.0
+max_step_m = 0.2
+max_steps = 3
+"""
+TABLES = ("trials", "outcomes", "successes")
+
+
+def rows(db: Path) -> dict[str, list[tuple]]:
+    with Results(db) as r:
+        return {t: r.rows(t) for t in TABLES}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("sweep") / "tiny.toml"
+    path.write_text(TINY)
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference(tiny) -> dict[str, list[tuple]]:
+    """The tiny sweep run straight through in this process, one trial after another."""
+    db = tiny.parent / "reference.sqlite"
+    done = run_sweep(load_sweep(tiny), db, workers=1, progress=False)
+    assert (done.total, done.already, done.ran) == (4, 0, 4)
+    return rows(db)
+
+
+def test_the_reference_rows_are_complete(reference):
+    assert [(r[0], r[1]) for r in reference["trials"]] == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    assert len(reference["outcomes"]) == 4 * 2
+    assert len(reference["successes"]) == 4 * 2 * 3
+    for _, _, _, density, achieved, obstacles, _ in reference["trials"]:
+        assert abs(achieved - density) <= 0.03  # the generated density, as recorded
+        assert obstacles >= 1
+
+
+def test_kill_9_then_resume_gives_the_rows_of_an_uninterrupted_run(tiny, reference, tmp_path):
+    db = tmp_path / "killed.sqlite"
+    cmd = [sys.executable, "-m", "sim.cli", "sweep", str(tiny), "--db", str(db),
+           "--workers", "2"]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 600
+        stored = 0
+        while stored < 1 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+            if db.exists():
+                with sqlite3.connect(db) as c:
+                    try:
+                        stored = c.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+                    except sqlite3.OperationalError:
+                        stored = 0
+        assert proc.poll() is None, "the sweep ended before it could be killed"
+        os.killpg(proc.pid, signal.SIGKILL)  # the sweep and its workers, mid-trial
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    with Results(db) as r:
+        before = r.done()
+    assert 1 <= len(before) < 4
+    assert main(["sweep", str(tiny), "--db", str(db)]) == 2  # not without --resume
+    done = run_sweep(load_sweep(tiny), db, workers=1, resume=True, progress=False)
+    assert done.already == len(before) and done.ran == 4 - len(before)
+    assert rows(db) == reference
+
+
+def test_two_workers_give_the_same_rows(tiny, reference, tmp_path):
+    db = tmp_path / "two.sqlite"
+    assert main(["sweep", str(tiny), "--db", str(db), "--workers", "2"]) == 0
+    assert rows(db) == reference
+
+
+def test_a_dask_cluster_gives_the_same_rows(tiny, reference, tmp_path):
+    from distributed import LocalCluster
+
+    db = tmp_path / "dask.sqlite"
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:
+        assert main(["sweep", str(tiny), "--db", str(db), "--scheduler",
+                     cluster.scheduler_address]) == 0
+    assert rows(db) == reference
+
+
+def test_a_trial_pairs_its_methods_whatever_their_order(tiny):
+    """Each method starts from the same mapped scene with its own random stream: run
+    alone, or after another, it does the same."""
+    sweep = load_sweep(tiny)
+    spec = trial_specs(sweep)[0]
+    both = run_trial(spec)
+    alone = run_trial(dataclasses.replace(spec, methods=spec.methods[1:]))
+
+    def strip(m):
+        return {k: v for k, v in m.items() if k != "time_s"}
+
+    assert strip(alone["methods"][0]) == strip(both["methods"][1])
+    assert alone["achieved_density"] == both["achieved_density"]
+
+
+@pytest.mark.parametrize(("edit", "key"), [
+    ('densities = [0.05, 0.2]', "densities"),
+    ('placement = "rating"', "methods[0].placement"),
+    ('width = 320', "camera.width"),
+    ('seed = 7', "speed"),
+])
+def test_a_bad_sweep_file_exits_2_naming_the_key(tiny, tmp_path, capsys, edit, key):
+    bad_values = {"densities": 'densities = [0.05, 1.5]',
+                  "methods[0].placement": 'placement = "psychic"',
+                  "camera.width": 'width = "wide"', "speed": 'seed = 7\nspeed = 3'}
+    path = tmp_path / "bad.toml"
+    path.write_text(TINY.replace(edit, bad_values[key], 1))
+    db = tmp_path / "bad.sqlite"
+    assert main(["sweep", str(path), "--db", str(db)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"'{key}'" in err[0] and str(path) in err[0]
+    assert "Traceback" not in err[0]
+    assert not db.exists()  # nothing started, nothing written
+
+
+def test_a_database_of_another_sweep_is_refused(tiny, reference, tmp_path, capsys):
+    db = tmp_path / "other.sqlite"
+    with Results(db) as r:
+        r.start({"sweep": {"seed": 99}}, resume=False)
+    assert main(["sweep", str(tiny), "--db", str(db), "--resume"]) == 2
+    assert "different sweep" in capsys.readouterr().err
+
+
+def test_wilson_interval_matches_hand_calculation():
+    # 5 of 10 at z = 1.96: centre 0.5, half-width 1.96/(1+0.38416) * sqrt(0.025 + 0.0096040)
+    lo, hi = wilson(5, 10)
+    half = 1.959963984540054 / (1 + 1.959963984540054 ** 2 / 10) * math.sqrt(
+        0.25 / 10 + 1.959963984540054 ** 2 / 400)
+    assert lo == pytest.approx(0.5 - half) and hi == pytest.approx(0.5 + half)
+    assert lo == pytest.approx(0.2366, abs=1e-4) and hi == pytest.approx(0.7634, abs=1e-4)
+    assert wilson(0, 2)[0] == 0.0 and wilson(0, 2)[1] == pytest.approx(0.6576, abs=1e-4)
+    assert wilson(3, 3)[1] == 1.0
+
+
+def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
+    db = tmp_path / "report.sqlite"
+    run_sweep(load_sweep(tiny), db, workers=1, progress=False)
+    # count from the stored trial records, not from the tables the report reads
+    count: dict[tuple[str, float, float], list[int]] = {}
+    with sqlite3.connect(db) as c:
+        for density, record in c.execute("SELECT density, record FROM trials"):
+            for m in json.loads(record)["methods"]:
+                for tol, ok in m["success"].items():
+                    n = count.setdefault((m["method"], density, float(tol)), [0, 0])
+                    n[0] += 1
+                    n[1] += bool(ok)
+    table = cells(db)
+    assert {(c.method, c.density, c.tolerance): [c.trials, c.successes] for c in table} == count
+    out = report(db, tmp_path / "out")
+    text = out["markdown"]
+    assert text == markdown(table) and text == (tmp_path / "out" / "report.md").read_text()
+    assert "(100)" in text  # the paper's optimal at 5 %, 20 % tolerance, with secondary
+    csv_lines = (tmp_path / "out" / "report.csv").read_text().splitlines()
+    assert len(csv_lines) == 1 + len(count)
+    assert (tmp_path / "out" / "report.png").stat().st_size > 10_000
