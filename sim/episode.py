@@ -234,7 +234,7 @@ class Episode:
 
         with self.timer("mapping"):
             summary = Exploration(self.scene, self.data, self.grid, sensor, self.pinhole,
-                                  self.rng, on_view).run()
+                                  self.rng, on_view, self.model).run()
         self.recorder.grid(self.grid)
         return summary
 

@@ -75,9 +75,12 @@ class Exploration:
 
     def __init__(self, scene: Scene, data: mujoco.MjData, grid: OccupancyGrid,
                  sensor: DepthSensor, pinhole: Pinhole, rng: np.random.Generator,
-                 on_view: Callable[[Robot, np.ndarray, float, np.ndarray], None] | None = None
-                 ) -> None:
+                 on_view: Callable[[Robot, np.ndarray, float, np.ndarray], None] | None = None,
+                 world: mujoco.MjModel | None = None) -> None:
+        """``data`` belongs to ``world``, the simulated world (default: the nominal
+        model); the views are taken there."""
         self.scene, self.data, self.grid, self.sensor = scene, data, grid, sensor
+        self.world = scene.model if world is None else world
         self.pinhole, self.rng = pinhole, rng
         self.s: Scenario = scene.scenario
         m = self.s.mapping
@@ -128,7 +131,7 @@ class Exploration:
 
     def observe(self, robot: Robot, qpos: np.ndarray, gain: float) -> None:
         """Move ``robot`` to ``qpos``, measure depth and integrate it."""
-        self.scene.set_robot(self.data, robot, qpos)
+        self.scene.set_robot(self.data, robot, qpos, self.world)
         depth = self.sensor.depth(self.data, robot)
         T = opencv_pose(camera_pose(self.data, robot.camera))
         integrate_depth(self.grid, depth, self.pinhole, T, self.s.grid.max_range_m,
@@ -184,11 +187,11 @@ class Exploration:
                                    move_base=False, settings=VIEW_IK)
             if ik.position_error_m > CLOSE_ENOUGH_M or ik.orientation_error_deg > 5.0:
                 continue
-            scene.set_robot(data, robot, ik.qpos)
+            scene.set_robot(data, robot, ik.qpos, self.world)
             near = clearance(scene.model, data, robot, scene.robots)
             if near.others >= self.s.search.clearance_m and near.own > 0:
                 T = opencv_pose(camera_pose(data, robot.camera))
                 out.append(Candidate(robot, ik.qpos, View(T),
                                      float(np.linalg.norm(T[:3, 3] - camera_now))))
-        scene.set_robot(data, robot, here)
+        scene.set_robot(data, robot, here, self.world)
         return out

@@ -118,10 +118,12 @@ class Scene:
         mujoco.mj_forward(self.model, data)
         return data
 
-    def set_robot(self, data: mujoco.MjData, robot: Robot, qpos: np.ndarray) -> None:
-        """Put one robot's joints at their values in ``qpos`` (a full configuration)."""
+    def set_robot(self, data: mujoco.MjData, robot: Robot, qpos: np.ndarray,
+                  model: mujoco.MjModel | None = None) -> None:
+        """Put one robot's joints at their values in ``qpos`` (a full configuration), in
+        ``data`` of ``model`` (default: the scene's nominal model)."""
         data.qpos[robot.qpos_adr] = qpos[robot.qpos_adr]
-        mujoco.mj_forward(self.model, data)
+        mujoco.mj_forward(self.model if model is None else model, data)
 
     def ctrl_for(self, qpos: np.ndarray) -> np.ndarray:
         """Position-actuator set points that hold ``qpos``."""

@@ -189,3 +189,36 @@ def test_default_scenario_punishes_ignoring_occlusion():
                          -1, geomid)
     assert geomid[0] >= 0 and dist < np.linalg.norm(vec) - 0.01
     assert episode.model.geom(geomid[0]).name.startswith("obstacle")
+
+
+def test_a_misplaced_workpiece_moves_in_the_world_only(tmp_path):
+    """With ``workpiece.position_error_m`` and ``yaw_error_deg`` the work-piece stands off
+    where the planner believes: the world's slot and holes move by the drawn error, the
+    nominal model's do not, and scene.xml shows the world."""
+    import dataclasses
+
+    base = load_scenario()
+    s = dataclasses.replace(base, workpiece=dataclasses.replace(
+        base.workpiece, yaw_deg=30.0, position_error_m=0.02, yaw_error_deg=3.0))
+    e = Episode(s)
+    dx, dy, dyaw = e.workpiece_error
+    assert 0 < math.hypot(dx, dy) < 0.1 and 0 < abs(dyaw) < math.radians(15)
+    world, nominal = e.data, e.belief
+    mujoco.mj_forward(e.model, world)
+    centre = np.array([*s.workpiece.position, 0.0])
+    c, si = math.cos(dyaw), math.sin(dyaw)
+    rot = np.array([[c, -si, 0], [si, c, 0], [0, 0, 1]])
+    for site in ("workpiece/slot",):
+        believed = nominal.site(site).xpos
+        expected = centre + rot @ (believed - centre) + [dx, dy, 0.0]
+        assert np.allclose(world.site(site).xpos, expected, atol=1e-9)
+    xml, files = e.scene.to_xml(world.qpos.copy(), e.world_bodies())
+    (tmp_path / "scene.xml").write_text(xml)
+    for path, content in files.items():
+        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / path).write_bytes(content)
+    saved = mujoco.MjModel.from_xml_path(str(tmp_path / "scene.xml"))
+    data = mujoco.MjData(saved)
+    mujoco.mj_forward(saved, data)
+    assert np.allclose(data.site("workpiece/slot").xpos, world.site("workpiece/slot").xpos,
+                       atol=1e-6)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from mapping import OccupancyGrid
+from mapping import GainModel, OccupancyGrid, Pinhole, View, region_mask
 from placement import (
     CameraModel,
     TargetModel,
@@ -15,7 +15,9 @@ from placement import (
     angular_visibility,
     biased_random,
     depth_of_field,
+    information_gain,
     line_of_sight,
+    look_at,
     rate,
     resolution,
     search,
@@ -177,3 +179,40 @@ def test_biased_random_placement_ignores_occlusion_within_its_bounds():
                                                np.random.default_rng(3), 45.0).ranked())
     assert (rated.ratings.tfv[order] < 1).any()  # it tries views the beam (partly) hides
     assert field.strategy == "biased_random" and (field.target[order] == 0).all()
+
+
+def test_look_at_points_the_optical_axis_at_the_target():
+    T = look_at(np.array([1.0, 0.5, 1.2]), np.array([0.0, 0.0, 0.2]))
+    R = T[:3, :3]
+    assert np.allclose(R.T @ R, np.eye(3)) and np.linalg.det(R) == pytest.approx(1.0)
+    expected = np.array([-1.0, -0.5, -1.0]) / 1.5
+    assert np.allclose(R[:, 2], expected)  # +z forward (OpenCV)
+    assert R[2, 0] == pytest.approx(0.0)  # x horizontal
+    assert R[2, 1] < 0  # +y, image down, points down in the world
+    straight_down = look_at(np.array([0.0, 0.0, 1.0]), np.zeros(3))
+    assert np.allclose(straight_down[:3, 2], [0, 0, -1])
+
+
+def test_next_best_view_prefers_views_into_the_unknown_by_expected_information():
+    """Candidates are ordered by the expected entropy gain of a view at the target from
+    there, checked against the gain model directly; views looking across the target
+    into a never-observed side come before views looking away from it."""
+    target = TargetModel("t", np.array([0.0, 0.0, 0.2]), UP, 0.02)
+    g = free_grid(res=0.1)
+    occupy(g, (-1, -1, 0), (1, 1, 0.1))
+    g.set_probability(0.5, np.broadcast_to(  # the x > 0.3 side was never observed
+        (g.centers()[..., 0] > 0.3), g.shape))
+    rated = search(g, [target], CAMERA)
+    camera = Pinhole.from_fovy(math.radians(60), 64, 48)
+    interest = region_mask(g, target.position, np.array([1.0, 1.0, 1.0]))
+    gains = GainModel(g, camera, interest, max_range=3.0, stride=4)
+    field = information_gain(rated, 0, target.position, gains, np.random.default_rng(5), 60)
+    order = field.ranked()
+    assert len(order) == 60 and len(set(order.tolist())) == 60
+    direct = gains.gains([View(look_at(p, target.position))
+                          for p in rated.ratings.positions[order]])
+    assert np.all(np.diff(direct) <= 1e-9)  # best first
+    x = rated.ratings.positions[order, 0]
+    assert x[:10].mean() < -0.5 < x[-10:].mean()  # from -x, looking towards +x, first
+    again = information_gain(rated, 0, target.position, gains, np.random.default_rng(5), 60)
+    assert np.array_equal(order, again.ranked()) and field.strategy == "information_gain"
