@@ -98,7 +98,7 @@ def main() -> None:
     parser.add_argument("--stage-trials", type=int, default=3)
     parser.add_argument("--trials", type=int, default=6)
     parser.add_argument("--memory-trials", type=int, default=200)
-    parser.add_argument("--memory-sweep", type=Path, default=Path("scenarios/regression.toml"),
+    parser.add_argument("--memory-sweep", type=Path, default=Path("scenarios/smoke.toml"),
                         help="a cheaper sweep for the long memory run")
     args = parser.parse_args()
     sweep = load_sweep(args.sweep)

@@ -77,6 +77,7 @@ def _outcome(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str
         "steps": task.get("steps"), "measurements": task.get("measurements"),
         "failed_measurements": task.get("failed_measurements"),
         "replacements": len(task.get("replacements", [])),
+        "failures": task.get("failures", [])[:3],  # the first failed measurements, why
         "stopped_by": task.get("stopped_by"),
         "targets_measured": sorted(frame.get("targets", {})),
         "robots": [{"name": r["name"], "placed": r["placed"], "seen": r["seen"],

@@ -20,58 +20,11 @@ from sim.cli import main
 from sim.report import cells, markdown, report, wilson
 from sim.results import Results
 from sim.runner import run_sweep, trial_specs
+from sim.scenario import SCENARIO_DIR
 from sim.sweep import load_sweep
 from sim.trial import run_trial
 
-# Small and quick: one-third-size images, four mapping views, a three-step task.
-TINY = """
-name = "tiny"
-scenario = "default.toml"
-seed = 7
-trials = 2
-densities = [0.05, 0.2]
-
-[[methods]]
-name = "optimal"
-placement = "rating"
-
-[[methods]]
-name = "random"
-placement = "biased_random"
-
-[overrides.camera]
-width = 320
-height = 240
-
-[overrides.mapping]
-max_views = 4
-
-[overrides.workpiece]
-position_error_m = 0.01
-yaw_error_deg = 2.0
-
-[overrides.search]
-check_sight = false
-ik_candidates = 4
-camera_z_m = [0.4, 1.3]
-reach_m = 1.0
-
-[overrides.motion]
-joint_offset_deg = 0.0
-joint_noise_deg = 0.0
-base_offset_m = 0.0
-base_yaw_deg = 0.0
-suspension_deg = 0.0
-settle_s = 0.2
-
-[overrides.correction]
-enabled = false
-
-[overrides.task]
-gain = 1.0
-max_step_m = 0.2
-max_steps = 3
-"""
+TINY = (SCENARIO_DIR / "smoke.toml").read_text()
 TABLES = ("trials", "outcomes", "successes")
 
 
