@@ -100,13 +100,24 @@ def main() -> None:
     parser.add_argument("--memory-trials", type=int, default=200)
     parser.add_argument("--memory-sweep", type=Path, default=Path("scenarios/smoke.toml"),
                         help="a cheaper sweep for the long memory run")
+    parser.add_argument("--parts", default="stages,throughput,memory",
+                        help="comma-separated: stages, throughput, memory")
     args = parser.parse_args()
+    parts = args.parts.split(",")
+    unknown = set(parts) - {"stages", "throughput", "memory"}
+    if unknown:
+        parser.error(f"unknown parts {sorted(unknown)}; parts: stages, throughput, memory")
     sweep = load_sweep(args.sweep)
-    rows = stages(sweep, args.stage_trials) + throughput(sweep, args.trials)
-    rows += memory(load_sweep(args.memory_sweep), args.memory_trials)
+    rows = []
+    if "stages" in parts:
+        rows += stages(sweep, args.stage_trials)
+    if "throughput" in parts:
+        rows += throughput(sweep, args.trials)
+    if "memory" in parts:
+        rows += memory(load_sweep(args.memory_sweep), args.memory_trials)
     print_table(rows)
-    write_results("sweep", rows, sweep=str(args.sweep), memory_sweep=str(args.memory_sweep))
-
+    name = "sweep" if len(parts) == 3 else "sweep_" + "_".join(parts)
+    write_results(name, rows, sweep=str(args.sweep), memory_sweep=str(args.memory_sweep))
 
 if __name__ == "__main__":
     main()

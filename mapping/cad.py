@@ -77,6 +77,9 @@ def voxels_of(grid: OccupancyGrid, model: BoxModel, pose: np.ndarray) -> np.ndar
     return mask
 
 
+MAX_EVALUATIONS = 60  # per loss scale: a good fit takes a few dozen; a bad one never ends
+
+
 def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
               viewpoints: np.ndarray | None = None,
               loss_scales_m: tuple[float, ...] = (0.02, 0.005)) -> tuple[np.ndarray, float]:
@@ -110,7 +113,8 @@ def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
             return np.concatenate([on, np.minimum(model.distance(to_object(T, ahead)), 0.0)])
 
         found = least_squares(residuals, np.zeros(6), loss="soft_l1", f_scale=scale,
-                              x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05]))
+                              x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05]),
+                              max_nfev=MAX_EVALUATIONS)
         pose = pose_of(found.x)
     distances = model.distance(to_object(pose, points))
     return pose, float(np.sqrt(np.mean(distances ** 2)))
