@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import ctypes
 import multiprocessing
+import os
 import signal
 import time
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from contextlib import suppress
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,13 +55,35 @@ def _worker_init() -> None:
     import sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
 
 
+# A trial already uses more than one core now and then (OpenCV, numba, BLAS); workers
+# side by side each keep to one thread rather than fight over the cores.
+SINGLE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                 "NUMBA_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1"}
+
+
+@contextmanager
+def one_thread_each() -> Iterator[None]:
+    """Worker processes started within inherit single-threaded library settings."""
+    saved = {k: os.environ.get(k) for k in SINGLE_THREAD}
+    os.environ.update(SINGLE_THREAD)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def _local(specs: list[TrialSpec], workers: int) -> Iterator[dict[str, Any]]:
     if workers == 1:
         for spec in specs:
             yield run_trial(spec)
         return
     context = multiprocessing.get_context("spawn")  # no GL context or renderer is inherited
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
+    with one_thread_each(), ProcessPoolExecutor(workers, mp_context=context,
+                                                initializer=_worker_init) as pool:
         pending: set[Future[dict[str, Any]]] = set()
         queue = iter(specs)
         try:
