@@ -160,6 +160,10 @@ def test_wilson_interval_matches_hand_calculation():
     assert lo == pytest.approx(0.2366, abs=1e-4) and hi == pytest.approx(0.7634, abs=1e-4)
     assert wilson(0, 2)[0] == 0.0 and wilson(0, 2)[1] == pytest.approx(0.6576, abs=1e-4)
     assert wilson(3, 3)[1] == 1.0
+    for n in range(1, 60):  # the interval holds its estimate, rounding included
+        for k in range(n + 1):
+            lo, hi = wilson(k, n)
+            assert 0.0 <= lo <= k / n <= hi <= 1.0
 
 
 def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
