@@ -7,16 +7,17 @@ its slot, and success is judged from where it really ends.
    from the circle of confusion of each pixel's depth, sim/optics.py); stereo matching
    gives depth; the panel's pixels are found by their colour (the hull of its yellow
    squares) and carried into the world through the camera's corrected pose; the panel's
-   CAD model is fitted to the points of all cameras together (mapping/cad.py). A step
-   where no camera sees enough of the panel, or the fit is poor, is a failed
-   measurement: the panel waits, nothing is guessed.
+   CAD model is fitted to the points of all cameras together, or, if they disagree,
+   of the best camera alone (mapping/cad.py). A step where no camera sees enough of
+   the panel, or the fit is poor, is a failed measurement: the panel waits, nothing is
+   guessed.
 3. **Update the map.** Each fitted pose moves the panel's voxels in the map, from its
    last fitted pose to the new one (sec. 3, steps 1-4), without remapping.
 4. **Steer.** The slot's place comes from the common target frame the cameras measured
    (its offset from the targets is known from the work-piece's CAD model). The panel is
    moved by ``gain`` of the measured displacement (at most ``max_step_m``), staying
-   ``approach_m`` above the slot until it is over it; each move errs by
-   ``step_scale`` and ``step_noise_m``.
+   ``approach_m`` above the slot until it is over it (then it goes down, and is not
+   lifted again); each move errs by ``step_scale`` and ``step_noise_m``.
 5. **Re-place.** A camera that fails ``lost_limit`` steps running may be re-placed: the
    rating function is searched again on the updated map (the episode does it).
 
