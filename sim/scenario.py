@@ -448,18 +448,21 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<string>") -> Scenari
     return typing.cast(Scenario, scenario)
 
 
-def load_scenario(path: str | Path | None = None, seed: int | None = None) -> Scenario:
-    """Read a scenario file (the default one when ``path`` is None)."""
-    path = Path(path) if path is not None else DEFAULT_SCENARIO
+def read_toml(path: Path) -> dict[str, Any]:
+    """A TOML file's table; ScenarioError if it cannot be read or parsed."""
     try:
-        text = path.read_text()
+        return tomllib.loads(path.read_text())
     except OSError as exc:
         raise ScenarioError(str(path), "<file>", str(path),
                             f"a readable TOML file ({exc.strerror})") from None
-    try:
-        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(str(path), "<syntax>", str(exc), "valid TOML") from None
+
+
+def load_scenario(path: str | Path | None = None, seed: int | None = None) -> Scenario:
+    """Read a scenario file (the default one when ``path`` is None)."""
+    path = Path(path) if path is not None else DEFAULT_SCENARIO
+    data = read_toml(path)
     data.setdefault("name", path.stem)
     scenario = parse_scenario(data, str(path))
     if seed is not None:

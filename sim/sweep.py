@@ -25,7 +25,6 @@ gives the same result whichever worker runs it, in whatever order.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +32,15 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .scenario import SCENARIO_DIR, Scenario, ScenarioError, _build, _check, parse_scenario
+from .scenario import (
+    SCENARIO_DIR,
+    Scenario,
+    ScenarioError,
+    _build,
+    _check,
+    parse_scenario,
+    read_toml,
+)
 
 Placement = Literal["rating", "biased_random", "information_gain"]
 
@@ -99,21 +106,11 @@ def _merge(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, A
     return out
 
 
-def _read_toml(path: Path) -> dict[str, Any]:
-    try:
-        return tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ScenarioError(str(path), "<file>", str(path),
-                            f"a readable TOML file ({exc.strerror})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(str(path), "<syntax>", str(exc), "valid TOML") from None
-
-
 def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     """Read a sweep file; ``trials`` overrides its trials per density. Raises
     ScenarioError naming the file and key of anything invalid."""
     path = Path(path)
-    data = _read_toml(path)
+    data = read_toml(path)
     overrides = data.pop("overrides", {})
     if not isinstance(overrides, Mapping):
         raise ScenarioError(str(path), "overrides", overrides,
@@ -130,7 +127,7 @@ def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     if not base_path.exists():
         raise ScenarioError(str(path), "scenario", config.scenario,
                             f"a scenario file beside the sweep file or in {SCENARIO_DIR.name}/")
-    base = _read_toml(base_path)
+    base = read_toml(base_path)
     base.setdefault("name", base_path.stem)
     parse_scenario(base, str(base_path))  # the base file's own errors name it
     source = f"{path} [overrides]"
