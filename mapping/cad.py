@@ -44,14 +44,28 @@ class BoxModel:
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Signed distance (m) of object-frame points (n, 3) to the model: negative
         inside."""
-        points = np.atleast_2d(points)
-        best = np.full(len(points), np.inf)
-        for c, h in zip(self.centres, self.halves, strict=True):
-            q = np.abs(points - c) - h
-            outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
-            inside = np.minimum(q.max(axis=1), 0.0)
-            best = np.minimum(best, outside + inside)
-        return best
+        return self.distance_and_gradient(points)[0]
+
+    def distance_and_gradient(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`distance` (n,) and its gradient (n, 3, a unit vector; object frame):
+        that of the nearest box, away from its nearest face or edge."""
+        q = np.atleast_2d(points)[:, None, :] - self.centres  # (n, boxes, 3)
+        side = np.where(q < 0, -1.0, 1.0)
+        beyond = np.abs(q) - self.halves
+        out = np.maximum(beyond, 0.0)
+        outside = np.linalg.norm(out, axis=2)
+        deepest = beyond.argmax(axis=2)
+        distance = outside + np.minimum(np.take_along_axis(beyond, deepest[..., None], 2)[..., 0],
+                                        0.0)
+        box = distance.argmin(axis=1)
+        rows = np.arange(len(q))
+        nearest, d = (out[rows, box], distance[rows, box])
+        length = outside[rows, box]
+        gradient = np.zeros_like(nearest)
+        gradient[rows, deepest[rows, box]] = 1.0  # inside: towards the nearest face
+        away = length > 0
+        gradient[away] = nearest[away] / length[away, None]
+        return d, gradient * side[rows, box]
 
 
 def to_object(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -80,6 +94,42 @@ def voxels_of(grid: OccupancyGrid, model: BoxModel, pose: np.ndarray) -> np.ndar
 MAX_EVALUATIONS = 60  # per loss scale: a good fit takes a few dozen; a bad one never ends
 
 
+def _residuals(model: BoxModel, pose: np.ndarray, points: np.ndarray,
+               ahead: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The fit's residuals (m) at ``pose``: the points' distances to the model, then
+    how deep each point ``ahead`` lies inside it (0 outside); and their derivatives by
+    a rotation vector applied on the left of the pose's rotation and by its
+    translation (n, 6), the parameters' tangent at ``pose``."""
+    clouds = [points] if ahead is None else [points, ahead]
+    values, rows = [], []
+    for k, cloud in enumerate(clouds):
+        arm = cloud - pose[:3, 3]  # world offsets from the object's origin
+        d, g = model.distance_and_gradient(arm @ pose[:3, :3])
+        u = g @ pose[:3, :3].T  # the gradient in the world frame
+        J = np.hstack([np.cross(u, arm), -u])
+        if k == 1:  # only the depth inside counts
+            inside = d < 0
+            d, J = np.where(inside, d, 0.0), J * inside[:, None]
+        values.append(d)
+        rows.append(J)
+    return np.concatenate(values), np.vstack(rows)
+
+
+def _left_jacobian(w: np.ndarray) -> np.ndarray:
+    """(6, 6): how a rotation vector ``w`` and a translation map to the tangent at
+    exp(w) (SO(3)'s left Jacobian, and the identity for the translation)."""
+    theta = float(np.linalg.norm(w))
+    W = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if theta < 1e-8:
+        left = np.eye(3) + 0.5 * W
+    else:
+        left = (np.eye(3) + (1 - np.cos(theta)) / theta**2 * W
+                + (theta - np.sin(theta)) / theta**3 * W @ W)
+    J = np.eye(6)
+    J[:3, :3] = left
+    return J
+
+
 def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
               viewpoints: np.ndarray | None = None,
               loss_scales_m: tuple[float, ...] = (0.02, 0.005)) -> tuple[np.ndarray, float]:
@@ -105,15 +155,25 @@ def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
             T[:3, 3] = t0 + x[3:]
             return T
 
-        def residuals(x: np.ndarray, pose_of: Any = pose_of) -> np.ndarray:
-            T = pose_of(x)
-            on = model.distance(to_object(T, points))
-            if ahead is None:
-                return on
-            return np.concatenate([on, np.minimum(model.distance(to_object(T, ahead)), 0.0)])
+        last: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # the solver asks twice
 
-        found = least_squares(residuals, np.zeros(6), loss="soft_l1", f_scale=scale,
-                              x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05]),
+        def evaluate(x: np.ndarray, pose_of: Any = pose_of,
+                     last: dict[bytes, tuple[np.ndarray, np.ndarray]] = last
+                     ) -> tuple[np.ndarray, np.ndarray]:
+            key = x.tobytes()
+            if key not in last:
+                last.clear()
+                last[key] = _residuals(model, pose_of(x), points, ahead)
+            return last[key]
+
+        def residuals(x: np.ndarray, evaluate: Any = evaluate) -> np.ndarray:
+            return evaluate(x)[0]
+
+        def jacobian(x: np.ndarray, evaluate: Any = evaluate) -> np.ndarray:
+            return evaluate(x)[1] @ _left_jacobian(x[:3])
+
+        found = least_squares(residuals, np.zeros(6), jac=jacobian, loss="soft_l1",
+                              f_scale=scale, x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05]),
                               max_nfev=MAX_EVALUATIONS)
         pose = pose_of(found.x)
     distances = model.distance(to_object(pose, points))

@@ -66,6 +66,8 @@ class CameraConfig:
     near_m: float = _positive(0.35)  # depth of field, near limit
     far_m: float = _positive(1.5)  # depth of field, far limit
     coc_px: float = _positive(1.5)  # blur-circle diameter at the depth of field's limits
+    # Multisample anti-aliasing, samples per pixel (0: off; rendering about twice as fast).
+    samples: int = _check(lambda v: v in (0, 2, 4, 8, 16), "0, 2, 4, 8 or 16", 4)
 
 
 @dataclass(frozen=True)

@@ -163,6 +163,7 @@ def _world(spec: mujoco.MjSpec, s: Scenario) -> None:
     spec.visual.map.zfar = 10.0  # x extent: 40 m
     spec.visual.global_.offwidth = max(640, s.camera.width)
     spec.visual.global_.offheight = max(480, s.camera.height)
+    spec.visual.quality.offsamples = s.camera.samples
     spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
     spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
     spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
