@@ -158,12 +158,16 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
            weights: Weights = Weights(), free_threshold: float = 0.05,
            region: Region = Region(), settings: SearchSettings = SearchSettings(),
            rng: np.random.Generator | None = None,
-           extra_occluders: Sequence[np.ndarray] = ()) -> RatingField:
+           extra_occluders: Sequence[np.ndarray] = (),
+           grid_hulls: dict[tuple[float, ...], list[Hull]] | None = None) -> RatingField:
     """Rate the candidates the strategy picks, for every target; keep each one's best.
 
     ``extra_occluders`` are point sets (m), e.g. other robots' bodies, each hulled after
-    expansion by the target like the grid's occluders.
+    expansion by the target like the grid's occluders. ``grid_hulls`` keeps the grid's
+    expanded occluders by target plane and radius: searches of one map with the same
+    ``settings`` that share a dict hull the map once.
     """
+    grid_hulls = {} if grid_hulls is None else grid_hulls
     positions, occupancy = candidates(grid, targets, camera, free_threshold, region)
     keep = _select(grid, positions, targets, settings, rng)
     positions, occupancy = positions[keep], occupancy[keep]
@@ -174,10 +178,13 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
         n = target.normal / np.linalg.norm(target.normal)
         plane = (*np.round(n, 9), round(float(n @ target.position), 9))
         if plane not in hulls_by_plane:  # targets on one plate share their occluders
-            pieces = grid_occluders(grid, target, unknown_occludes=settings.unknown_occludes,
-                                    block=settings.block)
-            hulls_by_plane[plane] = (target.radius,
-                                     expanded_hulls([*pieces, *extra_occluders], target))
+            key = (*plane, target.radius)
+            if key not in grid_hulls:
+                grid_hulls[key] = expanded_hulls(grid_occluders(
+                    grid, target, unknown_occludes=settings.unknown_occludes,
+                    block=settings.block), target)
+            hulls_by_plane[plane] = (target.radius, [
+                *grid_hulls[key], *expanded_hulls(list(extra_occluders), target)])
         radius, first = hulls_by_plane[plane]  # and their expanded hulls, scaled
         hulls[target.name] = (first if target.radius == radius else
                               [h.grown(target.radius / radius) for h in first])

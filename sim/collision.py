@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -48,8 +48,12 @@ class Proximity:
         floor = model.geom("floor").id
         self.world = [g for g in collision_geoms(
             model, frozenset(range(model.nbody)) - robot.body_ids - other_bodies) if g != floor]
-        self.pairs_own = [(g, h) for i, g in enumerate(self.own) for h in self.own[i + 1:]
-                          if not _neighbours(model, g, h)]
+        self.pairs_robots = _pairs(self.own, self.robots)
+        self.pairs_world = _pairs(self.own, self.world)
+        self.pairs_own = np.array([(g, h) for i, g in enumerate(self.own) for h in self.own[i + 1:]
+                                   if not _neighbours(model, g, h)], int).reshape(-1, 2)
+        # bounding spheres; a plane's (radius 0) bounds nothing
+        self._radius = np.where(model.geom_rbound > 0, model.geom_rbound, np.inf)
         self._fromto = np.zeros(6)
 
     @property
@@ -57,17 +61,28 @@ class Proximity:
         """Every geom the robot must keep clear of."""
         return self.robots + self.world
 
-    def _min(self, pairs: Iterable[tuple[int, int]], data: mujoco.MjData) -> float:
+    def _min(self, pairs: np.ndarray, data: mujoco.MjData) -> float:
+        """The smallest distance of the geom pairs (k, 2), nearest bounding spheres
+        first: a pair whose spheres are farther apart than the best so far is skipped."""
+        g, h = pairs[:, 0], pairs[:, 1]
+        apart = np.linalg.norm(data.geom_xpos[g] - data.geom_xpos[h], axis=1)
+        bound = apart - self._radius[g] - self._radius[h]
         best = self.limit
-        for g, h in pairs:
-            best = min(best, mujoco.mj_geomDistance(self.model, data, g, h, self.limit,
-                                                    self._fromto))
+        for k in np.argsort(bound):
+            if bound[k] >= best:
+                break
+            best = min(best, mujoco.mj_geomDistance(self.model, data, int(g[k]), int(h[k]),
+                                                    self.limit, self._fromto))
         return float(best)
 
     def measure(self, data: mujoco.MjData) -> Clearance:
-        return Clearance(self._min(((g, h) for g in self.own for h in self.robots), data),
-                         self._min(((g, h) for g in self.own for h in self.world), data),
+        return Clearance(self._min(self.pairs_robots, data), self._min(self.pairs_world, data),
                          self._min(self.pairs_own, data))
+
+
+def _pairs(a: list[int], b: list[int]) -> np.ndarray:
+    """Every pair (k, 2) of a geom of ``a`` and one of ``b``."""
+    return np.array([(g, h) for g in a for h in b], int).reshape(-1, 2)
 
 
 def _neighbours(model: mujoco.MjModel, g: int, h: int) -> bool:

@@ -43,6 +43,7 @@ from mapping import (
 )
 from placement import (
     CameraModel,
+    Hull,
     RatingField,
     Region,
     SearchSettings,
@@ -212,6 +213,7 @@ class Episode:
         self.sightings: list[Sighting] = []  # of the targets, by the placed cameras
         self.targets: tuple[Target, ...] = self.scene.targets  # the ones placement may use
         self._fields: dict[tuple[object, ...], RatingField] = {}  # searched, by question
+        self._grid_hulls: dict[tuple[object, ...], dict[tuple[float, ...], list[Hull]]] = {}
         self.pinhole = camera_pinhole(self.model, self.scene.robots[0].camera)
         self.step = 0
         cam = scenario.camera
@@ -255,15 +257,19 @@ class Episode:
         others = [pts for other in self.scene.robots if other is not robot
                   for pts in robot_points(self.nominal, belief, other)]
         # The same question gets the same answer: methods started from one mapped state
-        # share their first robot's rating field (a deterministic search draws nothing).
+        # share their first robot's rating field (a deterministic search draws nothing),
+        # and every search of one map its occluders' hulls.
+        grid_key = (hashlib.sha1(self.grid.log_odds.tobytes()).hexdigest(),
+                    settings.unknown_occludes, settings.block)
         key = (robot.name, tuple(t.name for t in targets), keep_out, belief.qpos.tobytes(),
-               hashlib.sha1(self.grid.log_odds.tobytes()).hexdigest())
+               grid_key)
         field_ = self._fields.get(key) if q.strategy != "random" else None
         if field_ is None:
             with self.timer("placement"):
                 field_ = search(self.grid, [target_model(t) for t in targets],
                                 self.camera_model, Weights(r.alpha, r.beta, r.gamma, r.delta),
-                                r.free_threshold, region, settings, self.rng, others)
+                                r.free_threshold, region, settings, self.rng, others,
+                                self._grid_hulls.setdefault(grid_key, {}))
             self._fields[key] = field_
         if q.method == "biased_random":
             field_ = biased_random(field_, [target_model(t) for t in targets], self.camera_model,

@@ -38,7 +38,7 @@ import numpy as np
 
 from mapping import BoxModel, OccupancyGrid, Pinhole, fit_model, move_object, opencv_pose
 from mapping.cad import to_object
-from mapping.stereo import StereoSettings, stereo_depth
+from mapping.stereo import StereoSettings, disparities, stereo_depth
 
 from .optics import Lens, defocus
 from .record import Recorder
@@ -57,6 +57,9 @@ MAX_POINTS_PER_CAMERA = 1000  # a random subset: the fit's time grows with them
 STEP_S = 1.0  # simulated time per steering step, for the recording
 OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)
 WINDOW_MARGIN_PX = 48  # around the panel: its blur (3 sigma of the widest level) and more
+# Stereo looks for the panel this much nearer and farther than where it is believed to
+# be (m): beyond the carry's error, the work-piece's and a step's.
+DEPTH_MARGIN_M = 0.15
 SETTINGS = StereoSettings()
 
 
@@ -188,7 +191,7 @@ class InsertionTask:
         eyes: dict[str, np.ndarray] = {}
         why: dict[str, str] = {}
         for cam in cameras:
-            found = self._panel_points(cam)
+            found = self._panel_points(cam, guess)
             if isinstance(found, str):
                 why[cam.robot.name] = found
             else:
@@ -211,7 +214,18 @@ class InsertionTask:
                        f"{on:.0%} within 1 cm")
         return None, {**why, "fit": failure} if seen else why or {"all": failure}
 
-    def _panel_points(self, cam: Camera) -> np.ndarray | str:
+    def _depths(self, cam: Camera, guess: np.ndarray) -> tuple[float, float]:
+        """How near and far (m) the panel may be from the camera, if it is about where
+        ``guess`` (4x4) puts it."""
+        m = self.model
+        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
+        corners = (m.centres[:, None] + signs * m.halves[:, None]).reshape(-1, 3)
+        world = corners @ guess[:3, :3].T + guess[:3, 3]
+        T = opencv_pose(cam.believed)
+        z = (world - T[:3, 3]) @ T[:3, 2]
+        return max(0.05, float(z.min()) - DEPTH_MARGIN_M), float(z.max()) + DEPTH_MARGIN_M
+
+    def _panel_points(self, cam: Camera, guess: np.ndarray) -> np.ndarray | str:
         """World points of the panel in one camera's view, or why there are none."""
         r, d, robot = self.renderer, self.data, cam.robot
         sharp, sharp_depth = r.rgbd(d, robot.camera)
@@ -219,7 +233,9 @@ class InsertionTask:
         if near.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
         rows, around = _window(near)
-        cols = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
+        depths = self._depths(cam, guess)
+        reach = sum(disparities(self.pinhole, self.baseline_m, SETTINGS, depths))
+        cols = slice(max(0, around.start - reach), around.stop)
         left = np.zeros_like(sharp)
         left[rows, cols] = defocus(sharp[rows, cols], sharp_depth[rows, cols], self.lens)
         right = np.zeros_like(sharp)
@@ -230,7 +246,7 @@ class InsertionTask:
         if mask.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
         depth = stereo_depth(left, right, self.pinhole, self.baseline_m, SETTINGS,
-                             (rows, around))
+                             (rows, around), depths)
         v, u = np.nonzero(mask & np.isfinite(depth))
         if len(v) < MIN_POINTS // 2:
             return "no stereo depth on the panel"
