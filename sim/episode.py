@@ -253,7 +253,7 @@ class Episode:
         r, q = s.rating, s.search
         settings = SearchSettings(q.strategy, q.coarse_step, q.max_distance_m, q.samples,
                                   r.unknown_occludes, r.hull_block,
-                                  cone=r.expansion == "cone")
+                                  directions=r.tfv_directions, cone=r.expansion == "cone")
         others = [pts for other in self.scene.robots if other is not robot
                   for pts in robot_points(self.nominal, belief, other)]
         # The same question gets the same answer: methods started from one mapped state
@@ -361,9 +361,8 @@ class Episode:
         for p in placements:
             robot = p.robot
             with self.timer("render"):
-                rgb = renderer.rgb(self.data, robot.camera)
+                rgb, depth = renderer.rgbd(self.data, robot.camera)
                 right = renderer.rgb(self.data, robot.right_camera)
-                depth = renderer.depth(self.data, robot.camera)
                 seg = renderer.segmentation(self.data, robot.camera)
             achieved = camera_pose(self.data, robot.camera)  # the truth, for evaluation
             self.recorder.camera(robot.name, achieved, pinhole, rgb, depth)

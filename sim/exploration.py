@@ -32,7 +32,7 @@ from mapping import (
     region_mask,
 )
 
-from .collision import clearance
+from .collision import Proximity
 from .ik import IKSettings, solve_camera_pose
 from .render import camera_pose
 from .scenario import Scenario
@@ -88,6 +88,7 @@ class Exploration:
         self.history: list[float] = [mean_entropy(grid, self.interest)]
         self.taken: list[dict[str, Any]] = []
         self.on_view = on_view
+        self.proximity = {r.name: Proximity(scene.model, r, scene.robots) for r in scene.robots}
 
     # ------------------------------------------------------------ public
 
@@ -188,7 +189,7 @@ class Exploration:
             if ik.position_error_m > CLOSE_ENOUGH_M or ik.orientation_error_deg > 5.0:
                 continue
             scene.set_robot(data, robot, ik.qpos, self.world)
-            near = clearance(scene.model, data, robot, scene.robots)
+            near = self.proximity[robot.name].measure(data)
             if near.others >= self.s.search.clearance_m and near.own > 0:
                 T = opencv_pose(camera_pose(data, robot.camera))
                 out.append(Candidate(robot, ik.qpos, View(T),

@@ -196,6 +196,10 @@ class RatingConfig:
     # occluder expansion by the target: "cone" exact for the camera's distance, "paper"
     # the whole target everywhere (conservative near the camera)
     expansion: Literal["cone", "paper"] = "cone"
+    # directions of the sphere around a target TFV is computed on (spacing about
+    # sqrt(4 pi / n) rad: 1.6 deg at 16384); time grows with them
+    tfv_directions: int = _check(lambda v: 1024 <= v <= 65536, "an integer 1024 to 65536",
+                                 16384)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ the same on every run and two obstacles never share a pattern.
 
 from __future__ import annotations
 
+import functools
 import re
 import zlib
 from collections.abc import Iterator
@@ -24,8 +25,10 @@ OCTAVES = (8, 16, 32, 64, 128, 256, 512)  # noise cells a side, coarse to fine (
 PERSISTENCE = 0.9  # amplitude ratio from one octave to the next finer one
 
 
+@functools.lru_cache(maxsize=64)  # scenes of a sweep share names: 1 MiB each
 def noise(size: int, seed: int) -> np.ndarray:
-    """Fractal value noise (size x size, float32 in [0, 1]) that tiles seamlessly."""
+    """Fractal value noise (size x size, float32 in [0, 1], read-only) that tiles
+    seamlessly."""
     rng = np.random.default_rng(seed)
     total = np.zeros((size, size), np.float32)
     amplitude = 1.0
@@ -38,7 +41,9 @@ def noise(size: int, seed: int) -> np.ndarray:
         total += amplitude * big[offset:offset + size, offset:offset + size]
         amplitude *= PERSISTENCE
     total -= total.min()
-    return total / max(float(total.max()), 1e-6)
+    total /= max(float(total.max()), 1e-6)
+    total.flags.writeable = False
+    return total
 
 
 def paint(spec: mujoco.MjSpec) -> dict[str, np.ndarray]:
