@@ -20,7 +20,7 @@ import numpy as np
 
 from .camera import Pinhole
 
-__all__ = ["StereoSettings", "disparities", "stereo_depth"]
+__all__ = ["StereoSettings", "stereo_depth"]
 
 
 @dataclass(frozen=True)
@@ -57,12 +57,11 @@ class StereoSettings:
             raise ValueError("invalid stereo settings: " + "; ".join(problems))
 
 
-def _matcher(settings: StereoSettings, channels: int, first: int, count: int
-             ) -> cv2.StereoSGBM:
+def _matcher(settings: StereoSettings, channels: int) -> cv2.StereoSGBM:
     area = channels * settings.block_size**2
     return cv2.StereoSGBM.create(
-        minDisparity=first,
-        numDisparities=count,
+        minDisparity=0,
+        numDisparities=settings.num_disparities,
         blockSize=settings.block_size,
         P1=8 * area,
         P2=32 * area,
@@ -78,16 +77,16 @@ def _disparity(matcher: cv2.StereoSGBM, left: np.ndarray, right: np.ndarray,
                pad: int) -> np.ndarray:
     """Disparity (px, float32) of each left pixel, NaN where SGBM found none.
 
-    SGBM leaves the first columns (as many as the largest disparity) unmatched; padding
-    both images on the left by ``pad`` columns lets it match them at the disparities
-    that stay inside the right image (the others fail the left-right check).
+    SGBM leaves the first ``num_disparities`` columns unmatched; padding both images on
+    the left by ``pad`` columns lets it match them at the disparities that stay inside
+    the right image (the others fail the left-right check).
     """
     if pad:
         left = cv2.copyMakeBorder(left, 0, 0, pad, 0, cv2.BORDER_CONSTANT, value=0)
         right = cv2.copyMakeBorder(right, 0, 0, pad, 0, cv2.BORDER_CONSTANT, value=0)
-    raw = matcher.compute(left, right)[:, pad:]  # int16, 4 fractional bits
+    raw = matcher.compute(left, right)[:, pad:]  # int16, 4 fractional bits; < 0: none
     disparity = raw.astype(np.float32) / 16.0
-    disparity[raw < 16 * matcher.getMinDisparity()] = np.nan  # none found
+    disparity[raw < 0] = np.nan
     return disparity
 
 
@@ -101,25 +100,9 @@ def _check_image(name: str, image: np.ndarray, camera: Pinhole) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
-def disparities(camera: Pinhole, baseline_m: float, settings: StereoSettings,
-                 depths_m: tuple[float, float] | None) -> tuple[int, int]:
-    """The first disparity :func:`stereo_depth` searches and how many (px, a multiple of
-    16): a left pixel at column u is matched with right columns u - first - count + 1
-    to u - first."""
-    if depths_m is None:
-        return 0, settings.num_disparities
-    near, far = depths_m
-    if not 0 < near < far:
-        raise ValueError(f"depths_m must be (near, far) with 0 < near < far, got {depths_m}")
-    first = int(np.floor(camera.fx * baseline_m / far))
-    last = int(np.ceil(camera.fx * baseline_m / near)) + 1
-    return first, 16 * -(-(last - first) // 16)
-
-
 def stereo_depth(left_rgb: np.ndarray, right_rgb: np.ndarray, camera: Pinhole,
                  baseline_m: float, settings: StereoSettings = StereoSettings(),
-                 window: tuple[slice, slice] | None = None,
-                 depths_m: tuple[float, float] | None = None) -> np.ndarray:
+                 window: tuple[slice, slice] | None = None) -> np.ndarray:
     """Metric z-depth (m) in the left camera, float32 (h, w), from a rectified pair.
 
     ``left_rgb`` and ``right_rgb`` are uint8 images (h, w, 3) or grey (h, w) of
@@ -129,10 +112,7 @@ def stereo_depth(left_rgb: np.ndarray, right_rgb: np.ndarray, camera: Pinhole,
 
     With ``window`` (rows, columns of the left image), only that part is matched (and
     the right image's columns from ``num_disparities`` to its left): much cheaper for a
-    small object; SGBM's smoothing paths then end at the window's edges. With
-    ``depths_m`` (near, far), only the disparities of that depth range are searched
-    (in steps of 16), instead of ``settings.num_disparities`` from 0: much cheaper when
-    it is known roughly how far the object is; nearer or farther surfaces go unmatched.
+    small object; SGBM's smoothing paths then end at the window's edges.
     """
     if not baseline_m > 0:
         raise ValueError(f"baseline_m must be > 0, got {baseline_m}")
@@ -143,17 +123,16 @@ def stereo_depth(left_rgb: np.ndarray, right_rgb: np.ndarray, camera: Pinhole,
     if window is not None:
         rows, cols = (slice(*w.indices(n)[:2]) for w, n in
                       zip(window, (camera.height, camera.width), strict=True))
-        first = max(0, cols.start - sum(disparities(camera, baseline_m, settings, depths_m)))
+        first = max(0, cols.start - settings.num_disparities)
         sub = dataclasses.replace(camera, width=cols.stop - first, height=rows.stop - rows.start,
                                   cx=camera.cx - first, cy=camera.cy - rows.start)
         part = stereo_depth(left[rows, first:cols.stop], right[rows, first:cols.stop], sub,
-                            baseline_m, settings, depths_m=depths_m)
+                            baseline_m, settings)
         depth = np.full((camera.height, camera.width), np.nan, np.float32)
         depth[rows, cols] = part[:, cols.start - first:]
         return depth
-    first, count = disparities(camera, baseline_m, settings, depths_m)
-    matcher = _matcher(settings, 1 if left.ndim == 2 else 3, first, count)
-    pad = first + count
+    matcher = _matcher(settings, 1 if left.ndim == 2 else 3)
+    pad = settings.num_disparities
     disparity = _disparity(matcher, left, right, pad)
 
     if settings.left_right_check:

@@ -361,8 +361,9 @@ class Episode:
         for p in placements:
             robot = p.robot
             with self.timer("render"):
-                rgb, depth = renderer.rgbd(self.data, robot.camera)
+                rgb = renderer.rgb(self.data, robot.camera)
                 right = renderer.rgb(self.data, robot.right_camera)
+                depth = renderer.depth(self.data, robot.camera)
                 seg = renderer.segmentation(self.data, robot.camera)
             achieved = camera_pose(self.data, robot.camera)  # the truth, for evaluation
             self.recorder.camera(robot.name, achieved, pinhole, rgb, depth)

@@ -38,7 +38,7 @@ import numpy as np
 
 from mapping import BoxModel, OccupancyGrid, Pinhole, fit_model, move_object, opencv_pose
 from mapping.cad import to_object
-from mapping.stereo import StereoSettings, disparities, stereo_depth
+from mapping.stereo import StereoSettings, stereo_depth
 
 from .optics import Lens, defocus
 from .record import Recorder
@@ -53,13 +53,10 @@ MIN_POINTS = 150  # panel points a measurement needs, over all cameras
 MAX_FIT_MEDIAN_M = 0.004
 MIN_ON_MODEL = 0.6
 REFERENCE_FX_PX = 415.7
-MAX_POINTS_PER_CAMERA = 1000  # a random subset: the fit's time grows with them
+MAX_POINTS_PER_CAMERA = 3000
 STEP_S = 1.0  # simulated time per steering step, for the recording
 OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)
 WINDOW_MARGIN_PX = 48  # around the panel: its blur (3 sigma of the widest level) and more
-# Stereo looks for the panel this much nearer and farther than where it is believed to
-# be (m): beyond the carry's error, the work-piece's and a step's.
-DEPTH_MARGIN_M = 0.15
 SETTINGS = StereoSettings()
 
 
@@ -191,7 +188,7 @@ class InsertionTask:
         eyes: dict[str, np.ndarray] = {}
         why: dict[str, str] = {}
         for cam in cameras:
-            found = self._panel_points(cam, guess)
+            found = self._panel_points(cam)
             if isinstance(found, str):
                 why[cam.robot.name] = found
             else:
@@ -214,39 +211,27 @@ class InsertionTask:
                        f"{on:.0%} within 1 cm")
         return None, {**why, "fit": failure} if seen else why or {"all": failure}
 
-    def _depths(self, cam: Camera, guess: np.ndarray) -> tuple[float, float]:
-        """How near and far (m) the panel may be from the camera, if it is about where
-        ``guess`` (4x4) puts it."""
-        m = self.model
-        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
-        corners = (m.centres[:, None] + signs * m.halves[:, None]).reshape(-1, 3)
-        world = corners @ guess[:3, :3].T + guess[:3, 3]
-        T = opencv_pose(cam.believed)
-        z = (world - T[:3, 3]) @ T[:3, 2]
-        return max(0.05, float(z.min()) - DEPTH_MARGIN_M), float(z.max()) + DEPTH_MARGIN_M
-
-    def _panel_points(self, cam: Camera, guess: np.ndarray) -> np.ndarray | str:
+    def _panel_points(self, cam: Camera) -> np.ndarray | str:
         """World points of the panel in one camera's view, or why there are none."""
         r, d, robot = self.renderer, self.data, cam.robot
-        sharp, sharp_depth = r.rgbd(d, robot.camera)
+        sharp = r.rgb(d, robot.camera)
         near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
         if near.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
         rows, around = _window(near)
-        depths = self._depths(cam, guess)
-        reach = sum(disparities(self.pinhole, self.baseline_m, SETTINGS, depths))
-        cols = slice(max(0, around.start - reach), around.stop)
+        cols = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
         left = np.zeros_like(sharp)
-        left[rows, cols] = defocus(sharp[rows, cols], sharp_depth[rows, cols], self.lens)
+        left[rows, cols] = defocus(sharp[rows, cols], r.depth(d, robot.camera)[rows, cols],
+                                   self.lens)
         right = np.zeros_like(sharp)
-        rgb, depth = r.rgbd(d, robot.right_camera)
-        right[rows, cols] = defocus(rgb[rows, cols], depth[rows, cols], self.lens)
+        right[rows, cols] = defocus(r.rgb(d, robot.right_camera)[rows, cols],
+                                    r.depth(d, robot.right_camera)[rows, cols], self.lens)
         mask = np.zeros_like(near)
         mask[rows, cols] = panel_mask(left[rows, cols])
         if mask.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
         depth = stereo_depth(left, right, self.pinhole, self.baseline_m, SETTINGS,
-                             (rows, around), depths)
+                             (rows, around))
         v, u = np.nonzero(mask & np.isfinite(depth))
         if len(v) < MIN_POINTS // 2:
             return "no stereo depth on the panel"

@@ -25,10 +25,8 @@ OCTAVES = (8, 16, 32, 64, 128, 256, 512)  # noise cells a side, coarse to fine (
 PERSISTENCE = 0.9  # amplitude ratio from one octave to the next finer one
 
 
-@functools.lru_cache(maxsize=64)  # scenes of a sweep share names: 1 MiB each
 def noise(size: int, seed: int) -> np.ndarray:
-    """Fractal value noise (size x size, float32 in [0, 1], read-only) that tiles
-    seamlessly."""
+    """Fractal value noise (size x size, float32 in [0, 1]) that tiles seamlessly."""
     rng = np.random.default_rng(seed)
     total = np.zeros((size, size), np.float32)
     amplitude = 1.0
@@ -41,9 +39,19 @@ def noise(size: int, seed: int) -> np.ndarray:
         total += amplitude * big[offset:offset + size, offset:offset + size]
         amplitude *= PERSISTENCE
     total -= total.min()
-    total /= max(float(total.max()), 1e-6)
-    total.flags.writeable = False
-    return total
+    return total / max(float(total.max()), 1e-6)
+
+
+@functools.lru_cache(maxsize=64)  # scenes of a sweep share names and colours: 768 KiB each
+def _painted(name: str, base: tuple[float, ...], mark: tuple[float, ...]) -> np.ndarray:
+    """The texture ``name`` in its colours (RGB uint8, read-only)."""
+    level = noise(SIZE, zlib.crc32(name.encode()))
+    # steepen the middle so that the noise reads as blotches, not as haze
+    level = np.clip((level - 0.5) * 3.0 + 0.5, 0.0, 1.0)[..., None]
+    rgb = (1 - level) * np.asarray(base) + level * np.asarray(mark)
+    image = np.rint(255 * rgb).astype(np.uint8)
+    image.flags.writeable = False
+    return image
 
 
 def paint(spec: mujoco.MjSpec) -> dict[str, np.ndarray]:
@@ -55,14 +63,9 @@ def paint(spec: mujoco.MjSpec) -> dict[str, np.ndarray]:
                 or tex.builtin != mujoco.mjtBuiltin.mjBUILTIN_FLAT
                 or tex.mark != mujoco.mjtMark.mjMARK_RANDOM):
             continue
-        level = noise(SIZE, zlib.crc32(tex.name.encode()))
-        # steepen the middle so that the noise reads as blotches, not as haze
-        level = np.clip((level - 0.5) * 3.0 + 0.5, 0.0, 1.0)[..., None]
-        base, mark = np.asarray(tex.rgb1), np.asarray(tex.markrgb)
-        rgb = (1 - level) * base + level * mark
+        image = _painted(tex.name, tuple(tex.rgb1), tuple(tex.markrgb))
         tex.builtin = mujoco.mjtBuiltin.mjBUILTIN_NONE
         tex.width, tex.height, tex.nchannel = SIZE, SIZE, 3
-        image = np.rint(255 * rgb).astype(np.uint8)
         tex.data = image.tobytes()
         painted[tex.name] = image
     return painted

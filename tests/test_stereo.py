@@ -10,7 +10,7 @@ from scipy.stats import spearmanr
 
 import sim  # noqa: F401  (GL backend before mujoco)
 from mapping import Pinhole
-from mapping.stereo import StereoSettings, disparities, stereo_depth
+from mapping.stereo import StereoSettings, stereo_depth
 from sim import Renderer, build_scene, camera_pinhole, load_scenario
 from sim.ik import solve_camera_pose
 
@@ -238,35 +238,3 @@ def test_a_window_matches_as_the_whole_image_does(rendered, estimated, view):
     assert both.sum() > 0.5 * a.size
     assert np.mean(np.isfinite(a) == np.isfinite(b)) > 0.95
     assert np.mean(np.abs(a[both] - b[both]) < 1e-3) > 0.95
-
-
-@pytest.mark.parametrize("view", VIEWS)
-def test_a_depth_range_finds_the_surfaces_within_it_and_nothing_outside(rendered, estimated,
-                                                                         view):
-    """Searching only the disparities of a depth range around the work-piece gives the
-    full search's depth where the full search found one inside the range (apart from a
-    few per cent of pixels, where SGBM's smoothing now sees fewer candidates), and no
-    depth outside the range; it searches far fewer disparities."""
-    views, pinhole, baseline = rendered
-    left, right, _, plate = views[view]
-    full = estimated[view]
-    z = full[plate & np.isfinite(full)]
-    depths = (float(np.percentile(z, 5)) - 0.1, float(np.percentile(z, 95)) + 0.1)
-    first, count = disparities(pinhole, baseline, StereoSettings(), depths)
-    assert first > 0 and count % 16 == 0 and count < StereoSettings().num_disparities
-    assert first <= pinhole.fx * baseline / depths[1] < first + 1
-    ranged = stereo_depth(left, right, pinhole, baseline, depths_m=depths)
-    found = ranged[np.isfinite(ranged)]
-    limits = (pinhole.fx * baseline / (first + count - 1), pinhole.fx * baseline / first)
-    assert found.min() >= limits[0] - 1e-6 and found.max() <= limits[1] + 1e-6
-    within = plate & np.isfinite(full) & (full > depths[0]) & (full < depths[1])
-    assert within.sum() > 500
-    a, b = full[within], ranged[within]
-    assert np.mean(np.isfinite(b)) > 0.9
-    both = np.isfinite(b)
-    assert np.mean(np.abs(a[both] - b[both]) < 1e-3) > 0.9
-
-
-def test_a_bad_depth_range_is_refused():
-    with pytest.raises(ValueError, match="depths_m"):
-        disparities(SMALL, BASELINE, StereoSettings(), (1.0, 0.5))
