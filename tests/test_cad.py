@@ -76,3 +76,43 @@ def test_fit_recovers_the_pose_from_surface_points():
     angle = Rotation.from_matrix(found[:3, :3].T @ truth[:3, :3]).magnitude()
     assert np.degrees(angle) < 1.0
     assert rms < 0.002
+
+
+def test_analytic_jacobian_matches_finite_differences():
+    """The fit's Jacobian (rotation vector on the left, then translation) against
+    central differences, for a two-box model, points inside and outside, and the
+    one-sided 'ahead' residuals."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    from mapping.cad import _left_jacobian, _residuals
+
+    model = BoxModel(np.array([[0.0, 0.0, 0.075], [0.05, 0.0, 0.02]]),
+                     np.array([[0.005, 0.1, 0.075], [0.01, 0.02, 0.02]]))
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-0.15, 0.2, (300, 3))
+    ahead = points + rng.normal(0.0, 0.01, points.shape)
+    R0, t0 = Rotation.from_rotvec([0.2, -0.1, 0.3]), np.array([0.01, 0.02, -0.03])
+
+    def pose_of(x: np.ndarray) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = (Rotation.from_rotvec(x[:3]) * R0).as_matrix()
+        T[:3, 3] = t0 + x[3:]
+        return T
+
+    for x in (np.zeros(6), np.array([0.1, -0.2, 0.15, 0.01, 0.0, -0.02])):
+        numeric = approx_derivative(lambda v: _residuals(model, pose_of(v), points, ahead)[0],
+                                    x, method="3-point")
+        analytic = _residuals(model, pose_of(x), points, ahead)[1] @ _left_jacobian(x[:3])
+        assert np.abs(numeric).max() > 0.5
+        # equal but for the few points within a step of a kink (an edge or the surface)
+        close = np.all(np.abs(numeric - analytic) < 1e-6, axis=1)
+        assert close.mean() > 0.97
+
+
+def test_gradient_points_away_from_the_box_by_hand():
+    box = BoxModel(np.zeros((1, 3)), np.array([[1.0, 2.0, 3.0]]))
+    d, g = box.distance_and_gradient(np.array([[2.0, 0.0, 0.0], [0.5, 0.0, 0.0],
+                                               [2.0, 3.0, 0.0], [0.0, -1.5, 0.0]]))
+    assert d == pytest.approx([1.0, -0.5, np.sqrt(2.0), -0.5])
+    assert g == pytest.approx(np.array([[1, 0, 0], [1, 0, 0], [np.sqrt(0.5), np.sqrt(0.5), 0],
+                                        [0, -1, 0]]))
