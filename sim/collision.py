@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -50,8 +50,8 @@ class Proximity:
             model, frozenset(range(model.nbody)) - robot.body_ids - other_bodies) if g != floor]
         self.pairs_robots = _pairs(self.own, self.robots)
         self.pairs_world = _pairs(self.own, self.world)
-        self.pairs_own = np.array([(g, h) for i, g in enumerate(self.own) for h in self.own[i + 1:]
-                                   if not _neighbours(model, g, h)], int).reshape(-1, 2)
+        self.pairs_own = _pairs(self.own, self.own, lambda g, h: g < h and not _neighbours(
+            model, g, h))
         # bounding spheres; a plane's (radius 0) bounds nothing
         self._radius = np.where(model.geom_rbound > 0, model.geom_rbound, np.inf)
         self._fromto = np.zeros(6)
@@ -80,9 +80,10 @@ class Proximity:
                          self._min(self.pairs_own, data))
 
 
-def _pairs(a: list[int], b: list[int]) -> np.ndarray:
-    """Every pair (k, 2) of a geom of ``a`` and one of ``b``."""
-    return np.array([(g, h) for g in a for h in b], int).reshape(-1, 2)
+def _pairs(a: list[int], b: list[int],
+           keep: Callable[[int, int], bool] = lambda g, h: True) -> np.ndarray:
+    """The pairs (k, 2) of a geom of ``a`` and one of ``b`` that ``keep`` keeps."""
+    return np.array([(g, h) for g in a for h in b if keep(g, h)], int).reshape(-1, 2)
 
 
 def _neighbours(model: mujoco.MjModel, g: int, h: int) -> bool:
