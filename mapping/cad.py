@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numba as nb
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
@@ -49,23 +50,53 @@ class BoxModel:
     def distance_and_gradient(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`distance` (n,) and its gradient (n, 3, a unit vector; object frame):
         that of the nearest box, away from its nearest face or edge."""
-        q = np.atleast_2d(points)[:, None, :] - self.centres  # (n, boxes, 3)
-        side = np.where(q < 0, -1.0, 1.0)
-        beyond = np.abs(q) - self.halves
-        out = np.maximum(beyond, 0.0)
-        outside = np.linalg.norm(out, axis=2)
-        deepest = beyond.argmax(axis=2)
-        distance = outside + np.minimum(np.take_along_axis(beyond, deepest[..., None], 2)[..., 0],
-                                        0.0)
-        box = distance.argmin(axis=1)
-        rows = np.arange(len(q))
-        nearest, d = (out[rows, box], distance[rows, box])
-        length = outside[rows, box]
-        gradient = np.zeros_like(nearest)
-        gradient[rows, deepest[rows, box]] = 1.0  # inside: towards the nearest face
-        away = length > 0
-        gradient[away] = nearest[away] / length[away, None]
-        return d, gradient * side[rows, box]
+        return _box_distance(np.ascontiguousarray(np.atleast_2d(points), dtype=float),
+                             np.ascontiguousarray(self.centres, dtype=float),
+                             np.ascontiguousarray(self.halves, dtype=float))
+
+
+@nb.njit(cache=True)
+def _box_distance(points: np.ndarray, centres: np.ndarray, halves: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance of each point to the nearest box (the first, on a tie) and its
+    unit gradient; inside a box, towards its nearest face (the first axis, on a tie)."""
+    n = points.shape[0]
+    distance = np.full(n, np.inf)
+    gradient = np.zeros((n, 3))
+    side, beyond, out = np.empty(3), np.empty(3), np.empty(3)
+    for i in range(n):
+        for b in range(centres.shape[0]):
+            deepest = 0
+            for k in range(3):
+                q = points[i, k] - centres[b, k]
+                side[k] = -1.0 if q < 0.0 else 1.0
+                beyond[k] = abs(q) - halves[b, k]
+                out[k] = max(beyond[k], 0.0)
+                if beyond[k] > beyond[deepest]:
+                    deepest = k
+            outside = np.sqrt((out[0] * out[0] + out[1] * out[1]) + out[2] * out[2])
+            d = outside + min(beyond[deepest], 0.0)
+            if not d < distance[i]:
+                continue
+            distance[i] = d
+            for k in range(3):
+                gradient[i, k] = out[k] / outside * side[k] if outside > 0.0 else 0.0
+            if outside == 0.0:
+                gradient[i, deepest] = side[deepest]
+    return distance, gradient
+
+
+@nb.njit(cache=True)
+def _tangent_rows(u: np.ndarray, arm: np.ndarray) -> np.ndarray:
+    """Per point (n, 6): arm x u, then -u (a signed distance's derivative by a rotation
+    vector on the left and by the translation, for a world gradient u at offset arm)."""
+    J = np.empty((u.shape[0], 6))
+    for i in range(u.shape[0]):
+        J[i, 0] = u[i, 1] * arm[i, 2] - u[i, 2] * arm[i, 1]
+        J[i, 1] = u[i, 2] * arm[i, 0] - u[i, 0] * arm[i, 2]
+        J[i, 2] = u[i, 0] * arm[i, 1] - u[i, 1] * arm[i, 0]
+        J[i, 3:] = -u[i]
+    return J
 
 
 def to_object(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -105,8 +136,7 @@ def _residuals(model: BoxModel, pose: np.ndarray, points: np.ndarray,
     for k, cloud in enumerate(clouds):
         arm = cloud - pose[:3, 3]  # world offsets from the object's origin
         d, g = model.distance_and_gradient(arm @ pose[:3, :3])
-        u = g @ pose[:3, :3].T  # the gradient in the world frame
-        J = np.hstack([np.cross(u, arm), -u])
+        J = _tangent_rows(g @ pose[:3, :3].T, arm)  # with the gradient in the world frame
         if k == 1:  # only the depth inside counts
             inside = d < 0
             d, J = np.where(inside, d, 0.0), J * inside[:, None]

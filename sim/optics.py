@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba as nb
 import numpy as np
 
 LEVELS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)  # Gaussian sigmas (px) computed once each
@@ -45,12 +46,27 @@ def defocus(rgb: np.ndarray, depth: np.ndarray, lens: Lens) -> np.ndarray:
     levels = np.asarray(LEVELS)
     upper = np.clip(np.searchsorted(levels, sigma, side="right"), 1, len(levels) - 1)
     lower = upper - 1
-    weight = ((sigma - levels[lower]) / (levels[upper] - levels[lower]))[..., None]
+    weight = (sigma - levels[lower]) / (levels[upper] - levels[lower])
     for k, s in enumerate(LEVELS):
-        use_lower, use_upper = lower == k, upper == k
-        if not (use_lower.any() or use_upper.any()):
+        if not ((lower == k).any() or (upper == k).any()):
             continue
         blurred = image if s == 0 else cv2.GaussianBlur(image, (0, 0), s)
-        out += np.where(use_lower[..., None], (1 - weight) * blurred, 0.0)
-        out += np.where(use_upper[..., None], weight * blurred, 0.0)
+        _add_level(out, blurred, lower, upper, weight, k)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+@nb.njit(cache=True)
+def _add_level(out: np.ndarray, blurred: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+               weight: np.ndarray, level: int) -> None:
+    """Add blur level ``level``'s share to each pixel (h, w, 3) between it and the next
+    level: 1 - weight where it is the lower one, weight where it is the upper one."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            if lower[i, j] == level:
+                share = 1.0 - weight[i, j]
+            elif upper[i, j] == level:
+                share = weight[i, j]
+            else:
+                continue
+            for c in range(out.shape[2]):
+                out[i, j, c] = np.float32(out[i, j, c] + share * np.float64(blurred[i, j, c]))

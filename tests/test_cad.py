@@ -28,6 +28,20 @@ def test_distance_by_hand():
     assert PANEL.size == pytest.approx(0.2)
 
 
+def test_union_of_boxes_distance_matches_each_box_alone():
+    """The compiled distance of three overlapping boxes equals the smallest of each box's
+    own signed distance (outside: the norm of the excess; inside: minus the depth)."""
+    rng = np.random.default_rng(3)
+    centres, halves = rng.normal(0.0, 0.05, (3, 3)), rng.uniform(0.01, 0.08, (3, 3))
+    points = rng.normal(0.0, 0.1, (4000, 3))
+    excess = np.abs(points[:, None, :] - centres) - halves  # (n, boxes, 3)
+    each = (np.linalg.norm(np.maximum(excess, 0.0), axis=2)
+            + np.minimum(excess.max(axis=2), 0.0))
+    d, g = BoxModel(centres, halves).distance_and_gradient(points)
+    assert d == pytest.approx(each.min(axis=1), abs=1e-15)
+    assert np.linalg.norm(g, axis=1) == pytest.approx(1.0)
+
+
 def test_voxels_of_match_brute_force_sampling():
     grid = OccupancyGrid.from_bounds(np.zeros(3), np.ones(3), 0.05)
     at = pose(0.43, 0.51, 0.2, yaw_deg=30.0)

@@ -39,6 +39,25 @@ def test_in_focus_is_untouched_and_far_out_of_focus_is_smoothed():
     assert near.std() < 0.7 * image.std()
 
 
+def test_each_pixel_mixes_its_two_blur_levels_by_hand():
+    """At a depth whose spread lies between the 2 and 4 px levels, every pixel is the
+    linear mix of those two Gaussian blurs, rounded; nearer pixels mix 4 and 8 px."""
+    rng = np.random.default_rng(1)
+    image = rng.integers(0, 256, (50, 70, 3), dtype=np.uint8)
+    depth = np.full((50, 70), 0.12)
+    depth[:, 35:] = 0.07
+    seen = defocus(image, depth, LENS).astype(float)
+    as_float = image.astype(np.float32)
+    for z, (low, high), part in ((0.12, (2.0, 4.0), np.s_[:, :35]),
+                                 (0.07, (4.0, 8.0), np.s_[:, 35:])):
+        sigma = LENS.blur_px(np.array([z]))[0] / (2 * math.sqrt(2))
+        assert low < sigma < high
+        w = (sigma - low) / (high - low)
+        mixed = ((1 - w) * cv2.GaussianBlur(as_float, (0, 0), low)
+                 + w * cv2.GaussianBlur(as_float, (0, 0), high))
+        assert np.abs(seen[part] - mixed[part]).max() <= 0.5 + 1e-3
+
+
 def test_a_blurred_hole_measures_worse_than_a_sharp_one():
     """The same dark disk, with sensor noise, seen in focus and at 0.15 m (nearer than
     the depth of field): its centre scatters more when it is blurred."""
