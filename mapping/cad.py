@@ -95,7 +95,7 @@ def _tangent_rows(u: np.ndarray, arm: np.ndarray) -> np.ndarray:
         J[i, 0] = u[i, 1] * arm[i, 2] - u[i, 2] * arm[i, 1]
         J[i, 1] = u[i, 2] * arm[i, 0] - u[i, 0] * arm[i, 2]
         J[i, 2] = u[i, 0] * arm[i, 1] - u[i, 1] * arm[i, 0]
-        J[i, 3:] = -u[i]
+        J[i, 3], J[i, 4], J[i, 5] = -u[i, 0], -u[i, 1], -u[i, 2]
     return J
 
 

@@ -361,9 +361,8 @@ class Episode:
         for p in placements:
             robot = p.robot
             with self.timer("render"):
-                rgb = renderer.rgb(self.data, robot.camera)
+                rgb, depth = renderer.rgb_and_depth(self.data, robot.camera)
                 right = renderer.rgb(self.data, robot.right_camera)
-                depth = renderer.depth(self.data, robot.camera)
                 seg = renderer.segmentation(self.data, robot.camera)
             achieved = camera_pose(self.data, robot.camera)  # the truth, for evaluation
             self.recorder.camera(robot.name, achieved, pinhole, rgb, depth)

@@ -33,6 +33,20 @@ def far_plane(model: mujoco.MjModel) -> float:
     return float(model.vis.map.zfar * model.stat.extent)
 
 
+def _farthest_geometry(model: mujoco.MjModel, data: mujoco.MjData, position: np.ndarray
+                       ) -> float | None:
+    """How far (m) the farthest rendered geometry may be from ``position``; None if it
+    lies behind a plane (below the floor), whose back a render does not show."""
+    offset = data.geom_xpos - position
+    plane = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
+    normal = data.geom_xmat[plane].reshape(-1, 3, 3)[:, :, 2]
+    if np.any(np.einsum("ij,ij->i", offset[plane], normal) > 0):
+        return None
+    size = np.where(plane, np.hypot(model.geom_size[:, 0], model.geom_size[:, 1]),
+                    model.geom_rbound)
+    return float(np.max(np.linalg.norm(offset, axis=1) + size))
+
+
 class Renderer:
     """Offscreen renderer for cameras of one resolution. Use as a context manager.
 
@@ -86,6 +100,37 @@ class Renderer:
             r.disable_depth_rendering()
         depth[depth >= self._sky] = np.inf
         return depth
+
+    def rgb_and_depth(self, data: mujoco.MjData, camera: str) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`rgb` and :meth:`depth` of one view, as those give them. Without
+        multisampling, for a perspective camera above the floor, both come from one render:
+        its depth buffer is then a depth render's, except where the sky box is drawn, and
+        that lies beyond all the scene's geometry. Otherwise, from two renders."""
+        r, m = self._r, self.model
+        position = data.camera(camera).xpos
+        reach = _farthest_geometry(m, data, position)
+        perspective = mujoco.mjtProjection.mjPROJ_PERSPECTIVE
+        if (m.vis.quality.offsamples or reach is None or reach >= self._sky / 2
+                or m.cam_projection[m.camera(camera).id] != perspective):
+            return self.rgb(data, camera), self.depth(data, camera)
+        rgb = self._render(data, camera)
+        start = time.perf_counter()
+        window = np.empty((r.height, r.width), np.float32)  # 1 at the near plane, 0 at far
+        mujoco.mjr_readPixels(None, window, r._rect, r._mjr_context)
+        depth = self._metric(window)[::-1].copy()  # row 0 at the top, as in rgb
+        depth[depth > reach] = np.inf  # the sky box
+        self.seconds += time.perf_counter() - start
+        return rgb, depth
+
+    def _metric(self, window: np.ndarray) -> np.ndarray:
+        """z-depth (m, float32) from a perspective camera's reversed-z window depth, as
+        MuJoCo's depth render computes it (float32 planes, float64 division)."""
+        extent = self.model.stat.extent
+        near = np.float32(self.model.vis.map.znear * extent)
+        far = np.float32(self.model.vis.map.zfar * extent)
+        scale = np.float32(-0.5) * (-(far + near) / (far - near)) - np.float32(0.5)
+        numerator = np.float32(-0.5) * (-(np.float32(2) * far * near) / (far - near))
+        return (numerator / (window.astype(np.float64) + scale)).astype(np.float32)
 
     def segmentation(self, data: mujoco.MjData, camera: str) -> np.ndarray:
         """Geom id per pixel (h, w) int32; -1 where no geom was hit."""

@@ -214,18 +214,17 @@ class InsertionTask:
     def _panel_points(self, cam: Camera) -> np.ndarray | str:
         """World points of the panel in one camera's view, or why there are none."""
         r, d, robot = self.renderer, self.data, cam.robot
-        sharp = r.rgb(d, robot.camera)
+        sharp, sharp_depth = r.rgb_and_depth(d, robot.camera)
         near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
         if near.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
         rows, around = _window(near)
         cols = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
         left = np.zeros_like(sharp)
-        left[rows, cols] = defocus(sharp[rows, cols], r.depth(d, robot.camera)[rows, cols],
-                                   self.lens)
+        left[rows, cols] = defocus(sharp[rows, cols], sharp_depth[rows, cols], self.lens)
+        right_rgb, right_depth = r.rgb_and_depth(d, robot.right_camera)
         right = np.zeros_like(sharp)
-        right[rows, cols] = defocus(r.rgb(d, robot.right_camera)[rows, cols],
-                                    r.depth(d, robot.right_camera)[rows, cols], self.lens)
+        right[rows, cols] = defocus(right_rgb[rows, cols], right_depth[rows, cols], self.lens)
         mask = np.zeros_like(near)
         mask[rows, cols] = panel_mask(left[rows, cols])
         if mask.sum() < MIN_POINTS:

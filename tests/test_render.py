@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import mujoco
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from mapping import camera_to_world, opencv_pose, world_to_camera
 from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
@@ -72,3 +75,29 @@ def test_gl_backend_respects_an_explicit_choice():
     env = {"MUJOCO_GL": "osmesa"}
     assert resolve_gl_backend(env) == "osmesa"
     assert resolve_gl_backend(dict()) in ("egl", "osmesa")
+
+
+def test_colour_and_depth_from_one_render_equal_two_renders():
+    """Without multisampling, colour and depth read from one shaded render are, to the
+    bit, what a colour render and a depth render give: for views of the scene, of the
+    sky (the sky box lies beyond the farthest geometry) and from below the floor (two
+    renders then: a render does not show a plane's back)."""
+    s = load_scenario()
+    scene = build_scene(dataclasses.replace(s, camera=dataclasses.replace(s.camera, samples=0)))
+    model, data = scene.model, scene.make_data()
+    camera = scene.robots[0].camera
+    cam = model.camera(camera).id
+    pinhole = camera_pinhole(model, camera)
+    rng = np.random.default_rng(0)
+    skies = below = 0
+    with Renderer(model, pinhole.width, pinhole.height) as r:
+        for k in range(24):
+            model.cam_pos[cam] = rng.uniform(-1.5, 1.5, 3)
+            model.cam_quat[cam] = Rotation.random(random_state=k).as_quat(scalar_first=True)
+            mujoco.mj_forward(model, data)
+            rgb, depth = r.rgb_and_depth(data, camera)
+            assert np.array_equal(rgb, r.rgb(data, camera))
+            assert np.array_equal(depth, r.depth(data, camera))
+            skies += bool(np.isinf(depth).any())
+            below += bool(data.cam_xpos[cam][2] < 0)
+    assert skies >= 5 and below >= 3
