@@ -120,20 +120,30 @@ def stereo_depth(left_rgb: np.ndarray, right_rgb: np.ndarray, camera: Pinhole,
     right = _check_image("right", right_rgb, camera)
     if left.shape != right.shape:
         raise ValueError(f"left and right images differ in shape: {left.shape}, {right.shape}")
-    if window is not None:
-        rows, cols = (slice(*w.indices(n)[:2]) for w, n in
-                      zip(window, (camera.height, camera.width), strict=True))
-        first = max(0, cols.start - settings.num_disparities)
-        sub = dataclasses.replace(camera, width=cols.stop - first, height=rows.stop - rows.start,
-                                  cx=camera.cx - first, cy=camera.cy - rows.start)
-        part = stereo_depth(left[rows, first:cols.stop], right[rows, first:cols.stop], sub,
-                            baseline_m, settings)
-        depth = np.full((camera.height, camera.width), np.nan, np.float32)
-        depth[rows, cols] = part[:, cols.start - first:]
-        return depth
+    if window is None:
+        return _depth(left, right, camera, baseline_m, settings, 0)
+    rows, cols = (slice(*w.indices(n)[:2]) for w, n in
+                  zip(window, (camera.height, camera.width), strict=True))
+    first = max(0, cols.start - settings.num_disparities)
+    sub = dataclasses.replace(camera, width=cols.stop - first, height=rows.stop - rows.start,
+                              cx=camera.cx - first, cy=camera.cy - rows.start)
+    part = _depth(left[rows, first:cols.stop], right[rows, first:cols.stop], sub, baseline_m,
+                  settings, cols.start - first)
+    depth = np.full((camera.height, camera.width), np.nan, np.float32)
+    depth[rows, cols] = part[:, cols.start - first:]
+    return depth
+
+
+def _depth(left: np.ndarray, right: np.ndarray, camera: Pinhole, baseline_m: float,
+           settings: StereoSettings, skip: int) -> np.ndarray:
+    """:func:`stereo_depth` of whole images, but for their first ``skip`` columns (left
+    NaN: only matched against). SGBM matches no column closer than ``num_disparities``
+    to the left edge: the left image is padded by as many as it lacks; the mirrored pair
+    of the left-right check always is (its right edge is the window's)."""
     matcher = _matcher(settings, 1 if left.ndim == 2 else 3)
     pad = settings.num_disparities
-    disparity = _disparity(matcher, left, right, pad)
+    disparity = _disparity(matcher, left, right, max(0, pad - skip))
+    disparity[:, :skip] = np.nan
 
     if settings.left_right_check:
         # Mirroring both images turns the right image into the left one of a rectified

