@@ -162,11 +162,14 @@ def _left_jacobian(w: np.ndarray) -> np.ndarray:
 
 def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
               viewpoints: np.ndarray | None = None,
-              loss_scales_m: tuple[float, ...] = (0.02, 0.005)) -> tuple[np.ndarray, float]:
+              loss_scales_m: tuple[float, ...] = (0.02, 0.005),
+              give_up_median_m: float = np.inf) -> tuple[np.ndarray, float]:
     """The pose (4x4) that puts the world points (n, 3) on the model's surface, from
     ``initial``; and the RMS distance (m) of the points to it. Robust (soft-L1) against
     the odd point that is not the object's, coarse to fine: the first loss scale lets a
-    start a few centimetres off be pulled in, the last one ignores stray points.
+    start a few centimetres off be pulled in, the last one ignores stray points. A fit
+    whose points lie a median ``give_up_median_m`` or more from the model after a stage
+    is not refined further.
 
     With ``viewpoints`` (n, 3: the camera centre that saw each point) the space just in
     front of each point, which the camera saw through, must be outside the model: the
@@ -206,7 +209,9 @@ def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
                               f_scale=scale, x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05]),
                               max_nfev=MAX_EVALUATIONS)
         pose = pose_of(found.x)
-    distances = model.distance(to_object(pose, points))
+        distances = model.distance(to_object(pose, points))
+        if np.median(np.abs(distances)) >= give_up_median_m:
+            break
     return pose, float(np.sqrt(np.mean(distances ** 2)))
 
 

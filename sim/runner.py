@@ -55,10 +55,10 @@ def _worker_init() -> None:
     import sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
 
 
-# A trial already uses more than one core now and then (OpenCV, numba, BLAS); workers
-# side by side each keep to one thread rather than fight over the cores.
+# A trial already uses more than one core now and then (OpenCV, numba, BLAS, Mesa's
+# rasteriser); workers side by side each keep to one thread rather than fight over the cores.
 SINGLE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-                 "NUMBA_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1"}
+                 "NUMBA_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1", "LP_NUM_THREADS": "1"}
 
 
 @contextmanager

@@ -279,6 +279,8 @@ class TaskConfig:
     stop_m: float = _positive(0.001)  # stop when the measured displacement is below this
     lost_limit: int = _check(lambda v: 1 <= v <= 100, "an integer 1 to 100", 3)
     replace: bool = True  # re-place a camera that lost the panel lost_limit times running
+    # pixels matched around the panel: at most the blurred margin (sim/task.py)
+    stereo_margin_px: int = _check(lambda v: 8 <= v <= 48, "an integer 8 to 48", 48)
 
 
 @dataclass(frozen=True)

@@ -92,6 +92,24 @@ def test_fit_recovers_the_pose_from_surface_points():
     assert rms < 0.002
 
 
+def test_a_hopeless_fit_stops_after_its_coarse_stage_and_a_good_one_is_refined():
+    """Points scattered a decimetre around the model stay far from it after the coarse
+    stage: with a 2 cm limit the fit ends there (as a coarse-only fit); points on the
+    surface pass the limit and get the fine stage (as a fit without one)."""
+    rng = np.random.default_rng(4)
+    start = pose(0.4, -0.2, 0.55)
+    scattered = start[:3, 3] + rng.normal(0.0, 0.1, (400, 3))
+    coarse_only = fit_model(PANEL, scattered, start, loss_scales_m=(0.02,))
+    stopped = fit_model(PANEL, scattered, start, give_up_median_m=0.02)
+    assert np.median(np.abs(PANEL.distance(to_object(stopped[0], scattered)))) > 0.02
+    assert np.array_equal(stopped[0], coarse_only[0]) and stopped[1] == coarse_only[1]
+    local = np.column_stack([rng.choice([-0.005, 0.005], 400), rng.uniform(-0.1, 0.1, 400),
+                             rng.uniform(0.0, 0.15, 400)])
+    surface = local + pose(0.41, -0.2, 0.55, yaw_deg=3.0)[:3, 3]
+    refined = fit_model(PANEL, surface, start, give_up_median_m=0.02)
+    assert np.array_equal(refined[0], fit_model(PANEL, surface, start)[0])
+
+
 def test_analytic_jacobian_matches_finite_differences():
     """The fit's Jacobian (rotation vector on the left, then translation) against
     central differences, for a two-box model, points inside and outside, and the

@@ -62,6 +62,7 @@ BAD = {
     "obstacle shape": ('[[obstacles]]\nshape = "cone"\nsize = [0.1]\n', "obstacles[0].shape"),
     "probability": ("[grid]\nhit = 1.5\n", "grid.hit"),
     "miss above half": ("[grid]\nmiss = 0.6\n", "grid.miss"),
+    "stereo margin": ("[task]\nstereo_margin_px = 64\n", "task.stereo_margin_px"),
     "syntax": ("[camera\n", "<syntax>"),
 }
 
