@@ -107,11 +107,11 @@ class Renderer:
         its depth buffer is then a depth render's, except where the sky box is drawn, and
         that lies beyond all the scene's geometry. Otherwise, from two renders."""
         r, m = self._r, self.model
-        position = data.camera(camera).xpos
-        reach = _farthest_geometry(m, data, position)
         perspective = mujoco.mjtProjection.mjPROJ_PERSPECTIVE
-        if (m.vis.quality.offsamples or reach is None or reach >= self._sky / 2
-                or m.cam_projection[m.camera(camera).id] != perspective):
+        reach = (None if m.vis.quality.offsamples
+                 or m.cam_projection[m.camera(camera).id] != perspective
+                 else _farthest_geometry(m, data, data.camera(camera).xpos))
+        if reach is None or reach >= self._sky / 2:
             return self.rgb(data, camera), self.depth(data, camera)
         rgb = self._render(data, camera)
         start = time.perf_counter()
