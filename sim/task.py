@@ -62,6 +62,9 @@ STEP_S = 1.0  # simulated time per steering step, for the recording
 OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)
 BLUR_MARGIN_PX = 48  # blurred around the panel: 3 sigma of the widest blur level and more
 SETTINGS = StereoSettings()
+# Where the panel is in a view comes from a segmentation at 1/COARSE of the resolution;
+# only the pixels measuring uses around it are then rendered in full.
+COARSE = 2
 
 
 @dataclass
@@ -159,6 +162,7 @@ class InsertionTask:
         m = scene.model
         self.model = panel_model(m)  # the CAD model: the nominal one
         self.mocap = int(m.body_mocapid[m.body("panel/panel").id])
+        self.panel_geom = m.geom("panel/panel").id
         self.slot_site = m.site("workpiece/slot").id
 
     # ------------------------------------------------------------ the world
@@ -215,20 +219,51 @@ class InsertionTask:
                        f"{on:.0%} within 1 cm")
         return None, {**why, "fit": failure} if seen else why or {"all": failure}
 
+    def _sharp_left(self, camera: str) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                 tuple[slice, slice]] | None:
+        """A left camera's sharp colour and depth (m), where the panel is (its yellow
+        pixels), and the window around them that measuring uses (rows, columns, with the
+        stereo's disparity range in front); None if fewer than MIN_POINTS panel pixels
+        are in view. Only a window around the panel's silhouette in a coarse segmentation
+        is rendered (black, depth inf elsewhere); the whole image if the panel reaches
+        that window's edge."""
+        r, d = self.renderer, self.data
+        h, w = self.pinhole.height, self.pinhole.width
+        ys, xs = np.nonzero(r.segmentation(d, camera, COARSE) == self.panel_geom)
+        if len(ys) == 0:
+            return None
+        sy, sx = h / (h // COARSE), w / (w // COARSE)
+        reach = BLUR_MARGIN_PX + COARSE
+        silhouette = (slice(max(0, int(ys.min() * sy) - reach),
+                            min(h, int(np.ceil((ys.max() + 1) * sy)) + reach)),
+                      slice(max(0, int(xs.min() * sx) - reach - SETTINGS.num_disparities),
+                            min(w, int(np.ceil((xs.max() + 1) * sx)) + reach)))
+        for rendered in (silhouette, (slice(0, h), slice(0, w))):
+            sharp = np.zeros((h, w, 3), np.uint8)
+            depth = np.full((h, w), np.inf, np.float32)
+            sharp[rendered], depth[rendered] = r.rgb_and_depth(d, camera, rendered)
+            near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
+            if near.sum() < MIN_POINTS:
+                return None
+            rows, around = _window(near, BLUR_MARGIN_PX)
+            cols = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
+            if all(outer.start <= inner.start and inner.stop <= outer.stop
+                   for outer, inner in zip(rendered, (rows, cols), strict=True)):
+                break
+        return sharp, depth, near, (rows, cols)
+
     def _panel_points(self, cam: Camera) -> np.ndarray | str:
         """World points of the panel in one camera's view, or why there are none."""
         r, d, robot = self.renderer, self.data, cam.robot
-        sharp, sharp_depth = r.rgb_and_depth(d, robot.camera)
-        near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
-        if near.sum() < MIN_POINTS:
+        found = self._sharp_left(robot.camera)
+        if found is None:
             return "panel not in view (occluded or outside the image)"
-        rows, around = _window(near, BLUR_MARGIN_PX)
-        cols = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
+        sharp, sharp_depth, near, (rows, cols) = found
         left = np.zeros_like(sharp)
         left[rows, cols] = defocus(sharp[rows, cols], sharp_depth[rows, cols], self.lens)
-        right_rgb, right_depth = r.rgb_and_depth(d, robot.right_camera)
         right = np.zeros_like(sharp)
-        right[rows, cols] = defocus(right_rgb[rows, cols], right_depth[rows, cols], self.lens)
+        right[rows, cols] = defocus(*r.rgb_and_depth(d, robot.right_camera, (rows, cols)),
+                                    self.lens)
         mask = np.zeros_like(near)
         mask[rows, cols] = panel_mask(left[rows, cols])
         if mask.sum() < MIN_POINTS:

@@ -101,3 +101,56 @@ def test_colour_and_depth_from_one_render_equal_two_renders():
             skies += bool(np.isinf(depth).any())
             below += bool(data.cam_xpos[cam][2] < 0)
     assert skies >= 5 and below >= 3
+
+
+def test_a_window_renders_as_the_whole_image_does_there():
+    """A window of a view, rendered alone through its part of the frustum, is the whole
+    render's: depth to float rounding (inf at the same pixels), colour to one grey level
+    at some texture edges (up to 5 % of pixels). The whole image as a window is the
+    whole render, to the bit."""
+    s = load_scenario()
+    scene = build_scene(dataclasses.replace(s, camera=dataclasses.replace(s.camera, samples=0)))
+    model, data = scene.model, scene.make_data()
+    camera = scene.robots[0].camera
+    cam = model.camera(camera).id
+    pinhole = camera_pinhole(model, camera)
+    h, w = pinhole.height, pinhole.width
+    rng = np.random.default_rng(1)
+    rendered = 0
+    with Renderer(model, w, h) as r:
+        for k in range(12):
+            model.cam_pos[cam] = rng.uniform(-1.5, 1.5, 2).tolist() + [rng.uniform(0.3, 1.5)]
+            model.cam_quat[cam] = Rotation.random(random_state=k).as_quat(scalar_first=True)
+            mujoco.mj_forward(model, data)
+            rgb, depth = r.rgb_and_depth(data, camera)
+            whole = r.rgb_and_depth(data, camera, (slice(0, h), slice(0, w)))
+            assert np.array_equal(whole[0], rgb) and np.array_equal(whole[1], depth)
+            r0, c0 = rng.integers(0, h // 2), rng.integers(0, w // 2)
+            window = (slice(r0, r0 + rng.integers(8, h // 2)),
+                      slice(c0, c0 + rng.integers(8, w // 2)))
+            part_rgb, part_depth = r.rgb_and_depth(data, camera, window)
+            assert part_rgb.shape == rgb[window].shape and part_depth.shape == depth[window].shape
+            grey = np.abs(part_rgb.astype(int) - rgb[window])
+            assert grey.max() <= 1 and np.mean(grey.max(axis=-1) > 0) < 0.1
+            seen = np.isfinite(depth[window])
+            assert np.array_equal(np.isfinite(part_depth), seen)
+            assert np.allclose(part_depth[seen], depth[window][seen], rtol=1e-5, atol=0)
+            rendered += int(seen.mean() > 0.5)
+    assert rendered >= 6
+
+
+def test_a_coarse_segmentation_sees_what_the_whole_one_sees_in_each_block(rendered):
+    """At 1/2 and 1/4 of the resolution each value is the geom at its block's centre: one
+    of the block's pixels' ids (all but a few along edges), the same geoms seen."""
+    scene, data, camera, pinhole, _, _, seg = rendered
+    with Renderer(scene.model, pinhole.width, pinhole.height) as r:
+        for k in (2, 4):
+            coarse = r.segmentation(data, camera, downscale=k)
+            h, w = pinhole.height // k, pinhole.width // k
+            assert coarse.shape == (h, w)
+            blocks = seg[:h * k, :w * k].reshape(h, k, w, k).transpose(0, 2, 1, 3)
+            among = (blocks == coarse[:, :, None, None]).any(axis=(2, 3))
+            assert among.mean() > 0.995
+            assert set(np.unique(coarse)) <= set(np.unique(seg))
+            assert len(np.unique(coarse)) >= 0.8 * len(np.unique(seg))
+
