@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import print_table, write_results
 
 import sim  # noqa: F401  (GL backend before mujoco)
-from sim.runner import _worker_init, run_sweep, trial_specs
+from sim.runner import _worker_init, one_thread_each, run_sweep, trial_specs
 from sim.sweep import Sweep, load_sweep
 from sim.trial import TrialSpec, run_trial
 
@@ -65,8 +65,8 @@ def throughput(sweep: Sweep, n: int) -> list[dict[str, Any]]:
         for label, workers in (("1 local worker", 1), ("2 local workers", 2)):
             done = run_sweep(small, Path(tmp) / f"{workers}.sqlite", workers, progress=False)
             rates[label] = done.ran / done.seconds
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                          dashboard_address=None) as cluster:
+        with one_thread_each(), LocalCluster(n_workers=2, threads_per_worker=1,
+                                             processes=True, dashboard_address=None) as cluster:
             start = time.perf_counter()
             done = run_sweep(small, Path(tmp) / "dask.sqlite", scheduler=cluster.scheduler_address,
                              progress=False)

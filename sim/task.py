@@ -10,7 +10,9 @@ its slot, and success is judged from where it really ends.
    CAD model is fitted to the points of all cameras together, or, if they disagree,
    of the best camera alone (mapping/cad.py). A step where no camera sees enough of
    the panel, or the fit is poor, is a failed measurement: the panel waits, nothing is
-   guessed.
+   guessed. Only the pixels this uses are rendered: around the panel's silhouette in
+   a coarse segmentation (the whole image when the panel reaches that window's edge),
+   and the right camera's window through its part of the frustum.
 3. **Update the map.** Each fitted pose moves the panel's voxels in the map, from its
    last fitted pose to the new one (sec. 3, steps 1-4), without remapping.
 4. **Steer.** The slot's place comes from the common target frame the cameras measured
