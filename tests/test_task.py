@@ -6,22 +6,50 @@ from __future__ import annotations
 
 import dataclasses
 
+import mujoco
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from mapping import voxels_of
+from mapping import Pinhole, voxels_of
 from sim import Renderer, load_scenario
 from sim.episode import new_grid
 from sim.ik import solve_camera_pose
 from sim.optics import Lens
 from sim.record import Recorder
 from sim.render import camera_pinhole, camera_pose
-from sim.scenario import ObstacleConfig
-from sim.scene import build_scene
-from sim.task import Camera, InsertionTask, TaskResult, panel_model
+from sim.scenario import ObstacleConfig, Scenario
+from sim.scene import Robot, Scene, build_scene
+from sim.task import (
+    BLUR_MARGIN_PX,
+    SETTINGS,
+    Camera,
+    InsertionTask,
+    TaskResult,
+    _window,
+    panel_mask,
+    panel_model,
+)
 
 VIEW_FROM = np.array([-0.6, -0.3, 0.5])  # camera offset from the slot (m)
+
+
+def looking_at_the_slot(s: Scenario) -> tuple[Scene, Robot, mujoco.MjData, np.ndarray]:
+    """The scene of ``s``, its first robot, its data with the robot's camera looking at the
+    slot from 0.85 m, and the slot's position (m)."""
+    scene = build_scene(s)
+    robot = scene.robots[0]
+    slot = scene.make_data().site("workpiece/slot").xpos.copy()
+    ik = solve_camera_pose(scene.model, scene.start_qpos, robot, slot + [0, 0, 0.08],
+                           slot + VIEW_FROM)
+    return scene, robot, scene.make_data(ik.qpos), slot
+
+
+def new_task(s: Scenario, scene: Scene, data: mujoco.MjData, renderer: Renderer,
+             pinhole: Pinhole, seed: int = 0) -> InsertionTask:
+    return InsertionTask(scene, scene.model, data, renderer, pinhole, s.camera.baseline_m,
+                         Lens(s.camera.near_m, s.camera.far_m, s.camera.coc_px), new_grid(s),
+                         s.task, np.random.default_rng(seed), Recorder(None, ""))
 
 
 def run_task(obstacles: tuple[ObstacleConfig, ...] = (), seed: int = 0, replace=None
@@ -31,19 +59,10 @@ def run_task(obstacles: tuple[ObstacleConfig, ...] = (), seed: int = 0, replace=
     base = load_scenario()
     s = dataclasses.replace(base, obstacles=obstacles, seed=seed,
                             task=dataclasses.replace(base.task, enabled=True))
-    scene = build_scene(s)
-    robot = scene.robots[0]
-    data = scene.make_data()
-    slot = data.site("workpiece/slot").xpos.copy()
-    ik = solve_camera_pose(scene.model, scene.start_qpos, robot, slot + [0, 0, 0.08],
-                           slot + VIEW_FROM)
-    data = scene.make_data(ik.qpos)
+    scene, robot, data, slot = looking_at_the_slot(s)
     pinhole = camera_pinhole(scene.model, robot.camera)
-    grid = new_grid(s)
     with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
-        task = InsertionTask(scene, scene.model, data, renderer, pinhole, s.camera.baseline_m,
-                             Lens(s.camera.near_m, s.camera.far_m, s.camera.coc_px), grid,
-                             s.task, np.random.default_rng(seed), Recorder(None, ""))
+        task = new_task(s, scene, data, renderer, pinhole, seed)
         result = task.run([Camera(robot, camera_pose(data, robot.camera))], slot, replace)
     return result, task
 
@@ -135,3 +154,37 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch):
     assert again["step"] == 2 and "3 steps running" in again["reason"]
     assert again["placed"] and len(again["candidate_position"]) == 3
     assert task["lost_views"] >= 3 and task["measurements"] >= 1
+
+
+def test_the_left_view_rendered_around_the_panel_finds_what_the_whole_image_does():
+    """The left camera renders only a window around the panel's coarse silhouette (the
+    whole image when the panel reaches the window's edge): its panel pixels and the
+    window measuring uses are those of the whole image, wherever the panel is, in view,
+    across the image's edge or out of it."""
+    base = load_scenario()
+    s = dataclasses.replace(base, camera=dataclasses.replace(base.camera, samples=0))
+    scene, robot, data, slot = looking_at_the_slot(s)
+    pinhole = camera_pinhole(scene.model, robot.camera)
+    right = camera_pose(data, robot.camera)[:3, 0]  # image x in the world
+    outcomes = []
+    with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
+        task = new_task(s, scene, data, renderer, pinhole)
+        for shift in (0.0, 0.1, 0.35, 0.45, 0.55, -0.4, 2.0):
+            task._move_panel(slot + [0, 0, 0.08] + shift * right)
+            whole = panel_mask(renderer.rgb(data, robot.camera))
+            found = task._sharp_left(robot.camera)
+            if whole.sum() < 150:
+                assert found is None
+                outcomes.append("out")
+                continue
+            assert found is not None
+            _, _, near, (rows, cols) = found
+            overlap = (near & whole).sum() / (near | whole).sum()
+            assert overlap > 0.99
+            rows_whole, around = _window(whole, BLUR_MARGIN_PX)
+            cols_whole = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
+            assert (rows, cols) == (rows_whole, cols_whole)
+            across = whole[:, 0].any() or whole[:, -1].any()  # the image's edge cuts it
+            outcomes.append("edge" if across else "in")
+    assert {"in", "edge", "out"} <= set(outcomes), outcomes
+
