@@ -128,7 +128,7 @@ class Renderer:
         render's, except where the sky box is drawn, and that lies beyond all the scene's
         geometry. A window is then all that is rendered, through the part of the camera's
         frustum it sees: per pixel as the whole image's, to a grey level's rounding at
-        some texture edges (up to 5 % of pixels). Otherwise, from two whole renders."""
+        some texture edges (a few per cent of pixels). Otherwise, from two whole renders."""
         r, m = self._r, self.model
         perspective = mujoco.mjtProjection.mjPROJ_PERSPECTIVE
         reach = (None if m.vis.quality.offsamples

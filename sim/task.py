@@ -134,6 +134,12 @@ def _window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
             slice(max(0, xs.min() - margin), min(w, xs.max() + margin + 1)))
 
 
+def _measuring_window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
+    """:func:`_window`, with the stereo's disparity range in front (left) of it."""
+    rows, cols = _window(mask, margin)
+    return rows, slice(max(0, cols.start - SETTINGS.num_disparities), cols.stop)
+
+
 def panel_mask(rgb: np.ndarray) -> np.ndarray:
     """The panel's pixels: the convex hull of its yellow squares (largest blob)."""
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
@@ -235,20 +241,18 @@ class InsertionTask:
         if len(ys) == 0:
             return None
         sy, sx = h / (h // COARSE), w / (w // COARSE)
-        reach = BLUR_MARGIN_PX + COARSE
-        silhouette = (slice(max(0, int(ys.min() * sy) - reach),
-                            min(h, int(np.ceil((ys.max() + 1) * sy)) + reach)),
-                      slice(max(0, int(xs.min() * sx) - reach - SETTINGS.num_disparities),
-                            min(w, int(np.ceil((xs.max() + 1) * sx)) + reach)))
-        for rendered in (silhouette, (slice(0, h), slice(0, w))):
+        silhouette = np.zeros((h, w), bool)  # its bounding box, in the image's pixels
+        silhouette[int(ys.min() * sy):int(np.ceil((ys.max() + 1) * sy)),
+                   int(xs.min() * sx):int(np.ceil((xs.max() + 1) * sx))] = True
+        around = _measuring_window(silhouette, BLUR_MARGIN_PX + COARSE)
+        for rendered in (around, (slice(0, h), slice(0, w))):
             sharp = np.zeros((h, w, 3), np.uint8)
             depth = np.full((h, w), np.inf, np.float32)
             sharp[rendered], depth[rendered] = r.rgb_and_depth(d, camera, rendered)
             near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
             if near.sum() < MIN_POINTS:
                 return None
-            rows, around = _window(near, BLUR_MARGIN_PX)
-            cols = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
+            rows, cols = _measuring_window(near, BLUR_MARGIN_PX)
             if all(outer.start <= inner.start and inner.stop <= outer.stop
                    for outer, inner in zip(rendered, (rows, cols), strict=True)):
                 break

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mapping import camera_to_world, opencv_pose, world_to_camera
+from mapping import Pinhole, camera_to_world, opencv_pose, world_to_camera
 from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
 from sim.gl import resolve_gl_backend
 
@@ -77,17 +77,23 @@ def test_gl_backend_respects_an_explicit_choice():
     assert resolve_gl_backend(dict()) in ("egl", "osmesa")
 
 
+def without_multisampling() -> tuple[mujoco.MjModel, mujoco.MjData, str, int, Pinhole]:
+    """The default scene without MSAA: model, data, the first robot's camera, its id and
+    pinhole."""
+    s = load_scenario()
+    scene = build_scene(dataclasses.replace(s, camera=dataclasses.replace(s.camera, samples=0)))
+    camera = scene.robots[0].camera
+    model = scene.model
+    return model, scene.make_data(), camera, model.camera(camera).id, camera_pinhole(model,
+                                                                                   camera)
+
+
 def test_colour_and_depth_from_one_render_equal_two_renders():
     """Without multisampling, colour and depth read from one shaded render are, to the
     bit, what a colour render and a depth render give: for views of the scene, of the
     sky (the sky box lies beyond the farthest geometry) and from below the floor (two
     renders then: a render does not show a plane's back)."""
-    s = load_scenario()
-    scene = build_scene(dataclasses.replace(s, camera=dataclasses.replace(s.camera, samples=0)))
-    model, data = scene.model, scene.make_data()
-    camera = scene.robots[0].camera
-    cam = model.camera(camera).id
-    pinhole = camera_pinhole(model, camera)
+    model, data, camera, cam, pinhole = without_multisampling()
     rng = np.random.default_rng(0)
     skies = below = 0
     with Renderer(model, pinhole.width, pinhole.height) as r:
@@ -106,14 +112,9 @@ def test_colour_and_depth_from_one_render_equal_two_renders():
 def test_a_window_renders_as_the_whole_image_does_there():
     """A window of a view, rendered alone through its part of the frustum, is the whole
     render's: depth to float rounding (inf at the same pixels), colour to one grey level
-    at some texture edges (up to 5 % of pixels). The whole image as a window is the
+    at some texture edges (a few per cent of pixels). The whole image as a window is the
     whole render, to the bit."""
-    s = load_scenario()
-    scene = build_scene(dataclasses.replace(s, camera=dataclasses.replace(s.camera, samples=0)))
-    model, data = scene.model, scene.make_data()
-    camera = scene.robots[0].camera
-    cam = model.camera(camera).id
-    pinhole = camera_pinhole(model, camera)
+    model, data, camera, cam, pinhole = without_multisampling()
     h, w = pinhole.height, pinhole.width
     rng = np.random.default_rng(1)
     rendered = 0

@@ -22,11 +22,11 @@ from sim.scenario import ObstacleConfig, Scenario
 from sim.scene import Robot, Scene, build_scene
 from sim.task import (
     BLUR_MARGIN_PX,
-    SETTINGS,
+    MIN_POINTS,
     Camera,
     InsertionTask,
     TaskResult,
-    _window,
+    _measuring_window,
     panel_mask,
     panel_model,
 )
@@ -173,7 +173,7 @@ def test_the_left_view_rendered_around_the_panel_finds_what_the_whole_image_does
             task._move_panel(slot + [0, 0, 0.08] + shift * right)
             whole = panel_mask(renderer.rgb(data, robot.camera))
             found = task._sharp_left(robot.camera)
-            if whole.sum() < 150:
+            if whole.sum() < MIN_POINTS:
                 assert found is None
                 outcomes.append("out")
                 continue
@@ -181,9 +181,7 @@ def test_the_left_view_rendered_around_the_panel_finds_what_the_whole_image_does
             _, _, near, (rows, cols) = found
             overlap = (near & whole).sum() / (near | whole).sum()
             assert overlap > 0.99
-            rows_whole, around = _window(whole, BLUR_MARGIN_PX)
-            cols_whole = slice(max(0, around.start - SETTINGS.num_disparities), around.stop)
-            assert (rows, cols) == (rows_whole, cols_whole)
+            assert (rows, cols) == _measuring_window(whole, BLUR_MARGIN_PX)
             across = whole[:, 0].any() or whole[:, -1].any()  # the image's edge cuts it
             outcomes.append("edge" if across else "in")
     assert {"in", "edge", "out"} <= set(outcomes), outcomes
