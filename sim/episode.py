@@ -19,6 +19,7 @@ world (``model``, ``data``) holds the truth, which only the evaluation reads.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import math
 import time
@@ -56,7 +57,7 @@ from placement import (
 )
 
 from .collision import blocked_rays, robot_points
-from .correction import Correction, PoseCorrector
+from .correction import ARM_REACH_M, Correction, PoseCorrector, prior_pose_sd
 from .exploration import Exploration, gain_model
 from .ik import IKResult
 from .motion import ErrorModel, MotionResult, Mover
@@ -91,12 +92,17 @@ class Timer:
 
 @dataclass
 class Placement:
-    """How one robot was placed."""
+    """One placement of one robot: the first (``step`` None) or a re-placement during the
+    task; ``pose`` is where its camera truly was when the move ended (evaluation only)."""
 
     robot: Robot
+    index: int = 0  # in the robot's placements
+    step: int | None = None  # the task step of a re-placement
+    reason: str = "initial"
     target: Target | None = None
     commanded: np.ndarray | None = None  # the candidate position (m)
     commanded_pose: np.ndarray | None = None  # the camera at the IK solution (4x4)
+    pose: np.ndarray | None = None  # the camera's true pose after the move (4x4)
     rating: dict[str, float] = field(default_factory=dict)
     ik: IKResult | None = None
     motion: MotionResult | None = None
@@ -104,8 +110,48 @@ class Placement:
     strategy: str = "exhaustive"
     evaluated: int = 0  # candidates the search rated
     candidates_tried: int = 0  # of them, tried with IK
+    undetectable: int = 0  # candidates skipped: the detector could not find the target
     rejections: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     unreachable: list[dict[str, Any]] = field(default_factory=list)  # residuals, first few
+
+    @property
+    def placed(self) -> bool:
+        return self.target is not None
+
+    def refused(self) -> str:
+        """Why no candidate was taken (empty when placed)."""
+        if self.placed:
+            return ""
+        if self.evaluated == 0:
+            return "no known-free candidate in the robot's region"
+        if self.candidates_tried == 0:
+            return ("no candidate with a positive rating from which the detector can find "
+                    f"the target ({self.undetectable} refused as undetectable)")
+        why = ", ".join(f"{k} {v}" for k, v in sorted(self.rejections.items()))
+        return f"every candidate tried was rejected ({why})"
+
+    def summary(self) -> dict[str, Any]:
+        """This placement's record in ``summary.json``'s ``placements``."""
+        out: dict[str, Any] = {
+            "index": self.index, "step": self.step, "reason": self.reason,
+            "placed": self.placed,
+            "search": {"strategy": self.strategy, "candidates_evaluated": self.evaluated,
+                       "refused_undetectable": self.undetectable},
+            "candidates_tried": self.candidates_tried, "rejections": dict(self.rejections),
+            "unreachable": self.unreachable}
+        if not self.placed:
+            return {**out, "refused": self.refused()}
+        assert (self.target is not None and self.commanded is not None and self.ik is not None
+                and self.commanded_pose is not None and self.pose is not None)
+        return {**out,
+                "candidate_position": self.commanded.tolist(),
+                "commanded_pose": pose_dict(self.commanded_pose),
+                "pose": pose_dict(self.pose),
+                "positioning_error": pose_error(self.commanded_pose, self.pose),
+                "target": self.target.summary(), "rating": self.rating,
+                "ik": self.ik.summary(),
+                "motion": None if self.motion is None else self.motion.summary(),
+                **correction_summary(self.correction, self.commanded_pose, self.pose)}
 
 
 @dataclass(frozen=True)
@@ -166,8 +212,8 @@ def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: i
 
 
 def believed_pose(p: Placement) -> np.ndarray:
-    """Where the robot believes its camera is: corrected if it could be, else as
-    commanded (4x4, MuJoCo camera convention)."""
+    """Where the robot believes its camera is: the correction's estimate unless it failed,
+    else as commanded (4x4, MuJoCo camera convention)."""
     if p.correction is not None and p.correction.pose is not None:
         return p.correction.pose
     assert p.commanded_pose is not None, "only placed robots have a camera pose"
@@ -216,6 +262,8 @@ class Episode:
         self._grid_hulls: dict[tuple[object, ...], dict[tuple[float, ...], list[Hull]]] = {}
         self.pinhole = camera_pinhole(self.model, self.scene.robots[0].camera)
         self.step = 0
+        self.prior_sd = prior_pose_sd(scenario.motion)  # of a camera pose not corrected
+        self.look_state = self.world_state()  # the world when the targets were looked for
         cam = scenario.camera
         self.camera_model = CameraModel(math.radians(cam.fovy_deg), cam.height, cam.near_m,
                                         cam.far_m)
@@ -240,9 +288,11 @@ class Episode:
         self.recorder.grid(self.grid)
         return summary
 
-    def place(self, robot: Robot, taken: list[np.ndarray]) -> Placement:
+    def place(self, robot: Robot, taken: list[np.ndarray], index: int = 0,
+              step: int | None = None, reason: str = "initial") -> Placement:
         """Stage 2 for one robot, given the camera positions already taken: search, plan,
-        and move there in the world."""
+        and move there in the world. ``index``, ``step`` and ``reason`` say which of the
+        robot's placements this is (a re-placement during the task has a step)."""
         s = self.s
         targets = self.targets
         belief = self.belief
@@ -280,7 +330,8 @@ class Episode:
                 field_ = information_gain(field_, targets.index(primary), primary.position,
                                           self._gain_model(), self.rng, q.gain_samples)
         self.recorder.candidates(robot.name, field_.ratings.positions, field_.ratings.total)
-        result = Placement(robot, strategy=field_.strategy, evaluated=field_.evaluated)
+        result = Placement(robot, index, step, reason, strategy=field_.strategy,
+                           evaluated=field_.evaluated)
         start = belief.qpos.copy()
         planner = ArmPlanner(self.scene, belief, q.clearance_m,
                              q.clearance_m + s.motion.ik_margin_m, s.robots.move_base)
@@ -316,6 +367,7 @@ class Episode:
             self.recorder.chosen(robot.name, position, target.position, target.name)
             self.recorder.hulls(robot.name, field_.hulls[target.name])
             result.motion, result.correction = self._move(robot, ik.path)
+            result.pose = camera_pose(self.data, robot.camera)
             return result
         return result
 
@@ -341,22 +393,34 @@ class Episode:
                 frames(t, measured)
                 framing += time.perf_counter() - start
 
+        error = self.errors.draw(robot)
         with self.timer("motion"):
-            motion = self.mover.follow(robot, path, self.errors.draw(robot), on_sample)
-        self.timer.totals["motion"] -= framing
-        self.timer.totals["correction"] += framing
+            motion = self.mover.follow(robot, path, error, on_sample)
         if corrector is None:
+            self.timer.totals["motion"] -= framing
+            self.timer.totals["correction"] += framing
             return motion, None
         with self.timer("correction"):
-            correction = corrector.finish(robot)
+            correction = corrector.finish(robot, last_try=len(path) < 2)
+        if correction.retrace_from is not None:  # back to where a frame was located, and forth
+            again = corrector.retrace(path, correction.retrace_from)
+            with self.timer("motion"):
+                self.mover.follow(robot, again, error, on_sample, error_held=True)
+            with self.timer("correction"):
+                correction = corrector.finish(robot)
+        self.timer.totals["motion"] -= framing
+        self.timer.totals["correction"] += framing
         self.recorder.fiducials(robot.name, correction)
         return motion, correction
 
-    def look(self, placements: list[Placement], renderer: Renderer) -> list[dict[str, Any]]:
-        """Stage 3: render from the reached poses and find each target in the image."""
+    def look(self, placements: list[Placement], renderer: Renderer) -> dict[str, dict[str, Any]]:
+        """Stage 3: render from the reached poses and find each target in the image; per
+        robot, what it saw (``seen``, ``pixel``, ``sightings``) and from which of its
+        placements. The world as it is now is kept for ``scene.xml``'s keyframe ``look``."""
         pinhole = self.pinhole
-        rows = []
+        rows: dict[str, dict[str, Any]] = {}
         self.sightings = []
+        self.look_state = self.world_state()
         self._tick()
         for p in placements:
             robot = p.robot
@@ -366,47 +430,51 @@ class Episode:
                 seg = renderer.segmentation(self.data, robot.camera)
             achieved = camera_pose(self.data, robot.camera)  # the truth, for evaluation
             self.recorder.camera(robot.name, achieved, pinhole, rgb, depth)
-            row: dict[str, Any] = {"name": robot.name, "camera": robot.camera,
-                                   "placed": p.target is not None, "pose": pose_dict(achieved)}
-            if (p.target is not None and p.ik is not None and p.commanded is not None
-                    and p.commanded_pose is not None):
-                row.update({
-                    "candidate_position": p.commanded.tolist(),
-                    "commanded_pose": pose_dict(p.commanded_pose),
-                    "positioning_error": pose_error(p.commanded_pose, achieved),
-                    "target": p.target.summary(),
-                    "rating": p.rating,
-                    "ik": p.ik.summary(),
-                    "motion": None if p.motion is None else p.motion.summary(),
-                    **correction_summary(p.correction, p.commanded_pose, achieved),
-                    "sightings": self._sight(robot, rgb, right, p),
-                    **find_target(rgb, seg, p.target, self.model.geom(p.target.geom).id,
-                                  achieved, pinhole),
-                })
-            else:
-                row.update({"seen": False, "pixel": None})
-            row["search"] = {"strategy": p.strategy, "candidates_evaluated": p.evaluated}
-            row["candidates_tried"] = p.candidates_tried
-            row["rejections"] = dict(p.rejections)
-            row["unreachable"] = p.unreachable
-            rows.append(row)
+            row: dict[str, Any] = {"seen": False, "pixel": None, "seen_from_placement": p.index}
+            if p.target is not None:
+                row.update(find_target(rgb, seg, p.target, self.model.geom(p.target.geom).id,
+                                       achieved, pinhole))
+                row["sightings"] = self._sight(robot, rgb, right, p)
+            rows[robot.name] = row
         return rows
 
     def _sight(self, robot: Robot, left: np.ndarray, right: np.ndarray, p: Placement
                ) -> list[dict[str, Any]]:
         """Every target the camera finds in stereo, placed through its believed pose (the
-        corrected one, else the commanded one)."""
+        corrected one, else the commanded one), with that pose's uncertainty carried to
+        the target."""
         rows: list[dict[str, Any]] = []
         if p.commanded_pose is None:
             return rows
         believed = believed_pose(p)
+        position_sd, rotation_sd = self.believed_sd(p)
         for t in self.targets:
             found = sight(robot.name, left, right, t, believed, self.pinhole,
                           self.s.camera.baseline_m)
             if found is not None:
+                reach = float(np.linalg.norm(found.position - believed[:3, 3]))
+                pose_sd = math.hypot(position_sd, reach * math.radians(rotation_sd))
+                found = dataclasses.replace(found, sd_m=math.hypot(found.sd_m, pose_sd),
+                                            placement=p.index,
+                                            pose_status=self.pose_status(p))
                 self.sightings.append(found)
                 rows.append(found.summary(t.position))
         return rows
+
+    def believed_sd(self, p: Placement) -> tuple[float, float]:
+        """Standard deviation of the robot's believed camera pose: position (m), rotation
+        (deg)."""
+        return self.prior_sd if p.correction is None else p.correction.believed_sd(self.prior_sd)
+
+    def pose_status(self, p: Placement) -> str:
+        """``corrected``, ``uncertain`` or ``failed`` (see Correction.status), or ``as
+        commanded`` with correction off."""
+        return "as commanded" if p.correction is None else p.correction.status
+
+    def world_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The world's joints and mocap bodies (positions, quaternions) as they are now."""
+        d = self.data
+        return d.qpos.copy(), d.mocap_pos.copy(), d.mocap_quat.copy()
 
     def run(self, recorder: Recorder | None = None
             ) -> tuple[dict[str, Any], str, dict[str, bytes]]:
@@ -422,7 +490,8 @@ class Episode:
             mapping = self.map(renderer)
             self.hold()
             robots, frame, task = self.place_and_do(renderer)
-        xml, files = self.scene.to_xml(self.data.qpos.copy(), self.world_bodies())
+        xml, files = self.scene.to_xml({"look": self.look_state, "final": self.world_state()},
+                                       self.world_bodies())
         self.timer.totals["total"] = time.perf_counter() - t0
         summary = {
             "version": VERSION, "scenario": self.s.name, "seed": self.s.seed,
@@ -440,51 +509,85 @@ class Episode:
             self.corrector = PoseCorrector(self.scene, self.belief, self.data, renderer,
                                            self.pinhole, self.s.camera.baseline_m,
                                            self.grid, self.s.correction)
-        placements: list[Placement] = []
+        placements: dict[str, list[Placement]] = {}
         taken: list[np.ndarray] = []
         for robot in self.scene.robots:
             self._tick()
             p = self.place(robot, taken)
-            placements.append(p)
+            placements[robot.name] = [p]
             if p.commanded is not None:
                 taken.append(p.commanded)
-        robots = self.look(placements, renderer)
+        looks = self.look([h[0] for h in placements.values()], renderer)
         frame = common_frame(self.sightings, self.targets)
         task = None
         if self.s.task.enabled:
             with self.timer("task"):
                 task = self.task(placements, frame, renderer).summary()
-        return robots, frame, task
+        return [self.robot_summary(h, looks[name]) for name, h in placements.items()], frame, task
 
-    def task(self, placements: list[Placement], frame: dict[str, Any], renderer: Renderer
-             ) -> TaskResult:
+    def robot_summary(self, placements: list[Placement], look: dict[str, Any]
+                      ) -> dict[str, Any]:
+        """``summary.json``'s record of one robot: where its camera ended (``pose``, the
+        truth, as in ``scene.xml``'s keyframe ``final``) and the placement it ended at,
+        every placement in order, and what it saw from the placement it looked from."""
+        robot = placements[0].robot
+        final = camera_pose(self.data, robot.camera)
+        ended = next((p for p in reversed(placements) if p.placed), None)
+        current = (ended or placements[-1]).summary()
+        for key in ("index", "step", "reason", "pose"):
+            current.pop(key, None)
+        if ended is not None and ended.commanded_pose is not None:
+            current["positioning_error"] = pose_error(ended.commanded_pose, final)
+        return {"name": robot.name, "camera": robot.camera, **current,
+                "placed": ended is not None, "pose": pose_dict(final),
+                "placement": None if ended is None else ended.index,
+                **look, "placements": [p.summary() for p in placements]}
+
+    def task(self, placements: dict[str, list[Placement]], frame: dict[str, Any],
+             renderer: Renderer) -> TaskResult:
         """Stage 4: guide the panel into its slot with the placed cameras (sim/task.py);
-        a camera that keeps losing the panel is placed again on the updated map."""
+        a camera that keeps losing the panel is placed again on the updated map. Not
+        attempted when no camera located the primary target: there is no slot to go to."""
         s = self.s
-        cameras = [Camera(p.robot, believed_pose(p)) for p in placements
-                   if p.commanded_pose is not None]
-        slot_cad = self.nominal_slot()
-        slot = in_measured_frame(slot_cad, self.targets, frame)
+        current = {name: next((p for p in reversed(h) if p.placed), h[0])
+                   for name, h in placements.items()}
+        cameras = [self._camera(p) for p in current.values() if p.placed]
         lens = Lens(s.camera.near_m, s.camera.far_m, s.camera.coc_px)
         run = InsertionTask(self.scene, self.model, self.data, renderer, self.pinhole,
                             s.camera.baseline_m, lens, self.grid, s.task, self.rng,
                             self.recorder)
+        if frame.get("frame") is None:
+            return run.not_attempted(cameras, "no camera located the primary target")
+        slot = in_measured_frame(self.nominal_slot(), self.targets, frame)
 
         def replace(cam: Camera, step: int) -> dict[str, Any] | None:
             if not s.task.replace:
                 return None
-            others = [p.commanded for p in placements
-                      if p.robot is not cam.robot and p.commanded is not None]
-            again = self.place(cam.robot, others)
-            record: dict[str, Any] = {"step": step, "robot": cam.robot.name,
-                                      "reason": f"lost the panel {cam.lost_in_a_row} steps running",
-                                      "placed": again.commanded_pose is not None}
-            if again.commanded_pose is not None and again.commanded is not None:
-                cam.believed = believed_pose(again)
-                record["candidate_position"] = again.commanded.tolist()
+            history = placements[cam.robot.name]
+            others = [p.commanded for name, p in current.items()
+                      if name != cam.robot.name and p.commanded is not None]
+            reason = f"lost the panel {cam.lost_in_a_row} steps running"
+            again = self.place(cam.robot, others, len(history), step, reason)
+            history.append(again)
+            record: dict[str, Any] = {"step": step, "robot": cam.robot.name, "reason": reason,
+                                      "placed": again.placed, "placement": again.index}
+            if again.placed:
+                current[cam.robot.name] = again
+                fresh = self._camera(again)
+                cam.believed, cam.pose_sd_m, cam.pose_status = (
+                    fresh.believed, fresh.pose_sd_m, fresh.pose_status)
             return record
 
-        return run.run(cameras, slot, replace)
+        return run.run(cameras, slot, replace,
+                       sorted({s.robot for s in self.sightings
+                               if s.target == self.scene.primary.name}))
+
+    def _camera(self, p: Placement) -> Camera:
+        """A placed camera as the task knows it: believed pose, its uncertainty and status."""
+        position_sd, rotation_sd = self.believed_sd(p)
+        return Camera(p.robot, believed_pose(p),
+                      math.hypot(position_sd, ARM_REACH_M * math.radians(rotation_sd)),
+                      self.pose_status(p))
 
     def nominal_slot(self) -> np.ndarray:
         """The slot's place in the work-piece's CAD model (world, m)."""

@@ -139,7 +139,7 @@ class Mover:
 
     def follow(self, robot: Robot, path: np.ndarray, error: MoveError,
                on_sample: Callable[[float, np.ndarray], None] | None = None,
-               sample_every_s: float = 0.05) -> MotionResult:
+               sample_every_s: float = 0.05, error_held: bool = False) -> MotionResult:
         """Drive ``robot``'s set points along ``path`` (k, 9), then hold the goal for the
         settle time, stepping the physics throughout.
 
@@ -149,7 +149,9 @@ class Mover:
         (none at the start, where the pose was known; all of it at the end).
         ``on_sample(t, measured)`` is called every ``sample_every_s`` of simulated time
         with the joints as the robot's encoders and odometry read them: the true joints
-        (servo lag included) less the move's errors, which they cannot see."""
+        (servo lag included) less the move's errors, which they cannot see.
+        ``error_held``: the error is already all there from the start (a move that
+        continues the last one, such as going back along it and forth again)."""
         m, d, cfg = self.world, self.data, self.cfg
         act = self.actuators[robot.name]
         knots = timed_path(path, cfg.speed_scale)
@@ -167,10 +169,11 @@ class Mover:
         tau = np.minimum((np.arange(n) + 1) * dt / max(duration, 1e-9), 1.0)
         progress = tau ** 3 * (10 - 15 * tau + 6 * tau ** 2)  # minimum jerk, 0 to 1
         speed = 30 * tau ** 2 * (1 - tau) ** 2 / max(duration, 1e-9)  # d progress / dt
+        built = np.ones(n) if error_held else progress  # share of the move's error made
         nominal = progress * knots[-1]
         commanded = np.column_stack([np.interp(nominal, knots, path[:, j])
                                      for j in range(path.shape[1])])
-        setpoints = commanded + progress[:, None] * error.setpoints
+        setpoints = commanded + built[:, None] * error.setpoints
         if len(path) > 1:  # velocity feed-forward: the servo's lag, led
             rates = np.diff(path, axis=0) / np.maximum(np.diff(knots), 1e-12)[:, None]
             segment = np.clip(np.searchsorted(knots, nominal, side="left") - 1, 0,
@@ -181,7 +184,7 @@ class Mover:
         own = np.array(sorted(own_geoms))
         for k in range(n):
             if k % TILT_EVERY == 0 or k == n - 1:
-                roll, pitch = progress[k] * tilt
+                roll, pitch = built[k] * tilt
                 self.tilt(robot, float(roll), float(pitch), forward=False)
             d.ctrl[act] = setpoints[k]
             mujoco.mj_step(m, d)
@@ -199,5 +202,5 @@ class Mover:
                 samples.append((float(d.time), d.qpos[robot.qpos_adr].copy()))
                 if on_sample is not None:
                     on_sample(float(d.time),
-                              d.qpos[robot.qpos_adr] - progress[k] * error.setpoints)
+                              d.qpos[robot.qpos_adr] - built[k] * error.setpoints)
         return MotionResult(float(d.time - t0), steps, closest, contacts, samples)

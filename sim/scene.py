@@ -129,24 +129,28 @@ class Scene:
         """Position-actuator set points that hold ``qpos``."""
         return qpos[self.model.jnt_qposadr[self.model.actuator_trnid[:, 0]]]
 
-    def to_xml(self, final_qpos: np.ndarray,
+    def to_xml(self, states: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
                bodies: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
                ) -> tuple[str, dict[str, bytes]]:
-        """MJCF of the scene with keyframes ``start`` and ``final``, and the files it
-        reads (painted textures, by path relative to it); ``bodies`` overrides named
-        bodies' (pos, quat) relative to their parents (the world as it ended, e.g. the
-        arms' tilted mounts)."""
+        """MJCF of the scene with keyframe ``start`` and one keyframe per named world state
+        (qpos, mocap positions, mocap quaternions), e.g. ``final``; and the files it reads
+        (painted textures, by path relative to it). ``bodies`` overrides named bodies'
+        (pos, quat) relative to their parents (the world as it ended, e.g. the arms'
+        tilted mounts)."""
         for name, (pos, quat) in (bodies or {}).items():
             body = self.spec.body(name)
             body.pos, body.quat = list(pos), list(quat)
-        for name, qpos in (("start", self.start_qpos), ("final", final_qpos)):
+        mocap = self.model.body_mocapid >= 0
+        start = (self.start_qpos, self.model.body_pos[mocap].ravel(),
+                 self.model.body_quat[mocap].ravel())
+        for name, (qpos, mpos, mquat) in {"start": start, **states}.items():
             key = self.spec.key(name)
             if key is None:
                 key = self.spec.add_key(name=name)
             key.qpos = qpos.tolist()
             key.ctrl = self.ctrl_for(qpos).tolist()
-            key.mpos = self.model.body_pos[self.model.body_mocapid >= 0].ravel().tolist()
-            key.mquat = self.model.body_quat[self.model.body_mocapid >= 0].ravel().tolist()
+            key.mpos = np.ravel(mpos).tolist()
+            key.mquat = np.ravel(mquat).tolist()
         with as_files(self.spec, self.textures):
             self.spec.compile()  # to_xml needs a compiled spec; self.model stays as it was
             xml = str(self.spec.to_xml())
@@ -291,3 +295,50 @@ def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:
             return True
         body = int(model.body_parentid[body])
     return False
+
+
+def check_robot_bases(scene: Scene) -> None:
+    """Raise ScenarioError if a robot, at its start configuration, overlaps anything but
+    the floor (the work-piece, the panel, an obstacle, another robot), naming the base pose
+    at fault and what it overlaps. Exact for every shape: MuJoCo's signed distance between
+    collision geoms (touching, within a micrometre, is allowed)."""
+    model, data, s = scene.model, scene.make_data(), scene.scenario
+    owner = {int(b): i for i, r in enumerate(scene.robots) for b in r.body_ids}
+    floor = model.geom("floor").id
+    solid = [g for g in range(model.ngeom) if g != floor
+             and (model.geom_contype[g] or model.geom_conaffinity[g])]
+    radius = np.where(model.geom_rbound > 0, model.geom_rbound, np.inf)
+    fromto = np.zeros(6)
+
+    def what(g: int) -> str:
+        body = model.body(int(model.geom_bodyid[g])).name
+        name = model.geom(g).name or body
+        i = owner.get(int(model.geom_bodyid[g]))
+        if i is not None:
+            return f"{name} of robot r{i + 1} (robots.bases[{i}])"
+        if name.startswith("obstacle"):
+            return f"obstacles[{name[8:].split('/')[0]}] (a {name.split('/')[-1]})"
+        return name
+
+    for i, robot in enumerate(scene.robots):
+        own = [g for g in solid if owner.get(int(model.geom_bodyid[g])) == i]
+        others = [h for h in solid if owner.get(int(model.geom_bodyid[h]), len(owner)) > i]
+        for g in own:
+            for h in others:
+                apart = np.linalg.norm(data.geom_xpos[g] - data.geom_xpos[h])
+                if apart > radius[g] + radius[h]:
+                    continue
+                depth = -mujoco.mj_geomDistance(model, data, g, h, 0.0, fromto)
+                if depth <= 1e-6:
+                    continue
+                inside = (f"{what(g).split(' of ')[0]} of {robot.name} overlaps {what(h)} "
+                          f"by {depth * 1000:.0f} mm")
+                if s.robots.bases:
+                    b = s.robots.bases[i]
+                    raise ScenarioError(s.source, f"robots.bases[{i}]",
+                                        {"x": b.x, "y": b.y, "yaw_deg": b.yaw_deg},
+                                        f"a start pose clear of everything but the floor; "
+                                        f"here the {inside}")
+                raise ScenarioError(s.source, "robots.start_radius_m", s.robots.start_radius_m,
+                                    f"a radius at which every robot stands clear of everything "
+                                    f"but the floor; here the {inside}")

@@ -25,6 +25,9 @@ from mapping import Pinhole, opencv_pose, world_to_camera
 from .scene import Target
 
 POSE_SLACK_PX = 40.0  # how far a believed pose may misplace a target in the image
+# The hole centres' disparity error (px): template matching places a centre to a few
+# tenths of a pixel, as the correction's keypoints (correction.pixel_sigma 0.3 px).
+DISPARITY_SD_PX = 0.3
 
 
 @dataclass(frozen=True)
@@ -37,11 +40,15 @@ class Sighting:
     disparity: float  # pixels
     score: float  # the left template match
     position: np.ndarray  # world (m), through the believed camera pose
+    sd_m: float = 0.0  # of ``position``: stereo depth and the believed pose's uncertainty
+    placement: int = 0  # which of the robot's placements it was made from
+    pose_status: str = "as commanded"  # of the believed pose (corrected, failed, ...)
 
     def summary(self, truth: np.ndarray) -> dict[str, Any]:
         return {"target": self.target, "pixel": [round(c, 3) for c in self.pixel],
                 "disparity_px": round(self.disparity, 3), "score": round(self.score, 4),
-                "position": self.position.round(5).tolist(),
+                "position": self.position.round(5).tolist(), "sd_m": round(self.sd_m, 6),
+                "placement": self.placement, "pose": self.pose_status,
                 "error_m": round(float(np.linalg.norm(self.position - truth)), 6)}
 
 
@@ -86,24 +93,32 @@ def sight(robot: str, left: np.ndarray, right: np.ndarray, target: Target,
     d = found.u - other.u
     camera = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, baseline_m)
     in_cam = camera.point(np.array([found.u, found.v, d]))
+    depth_sd = float(in_cam[2]) ** 2 / (pinhole.fx * baseline_m) * DISPARITY_SD_PX
     return Sighting(robot, target.name, (found.u, found.v), d, found.score,
-                    T[:3, :3] @ in_cam + T[:3, 3])
+                    T[:3, :3] @ in_cam + T[:3, 3], depth_sd)
 
 
 def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict[str, Any]:
     """The target frame from every robot's sightings, and each target's measured place
-    (mean over robots) against the truth."""
+    against the truth: the mean over robots weighted by the inverse variance of each
+    sighting (``sd_m``), so that a camera whose pose could not be corrected counts as
+    little as its uncertainty says."""
     out: dict[str, Any] = {"targets": {}}
     measured: dict[str, np.ndarray] = {}
     for t in targets:
-        seen = [s.position for s in sightings if s.target == t.name]
-        if not seen:
+        mine = [s for s in sightings if s.target == t.name]
+        if not mine:
             continue
-        mean = np.mean(seen, axis=0)
+        seen = np.array([s.position for s in mine])
+        weights = 1.0 / np.maximum([s.sd_m for s in mine], 1e-6) ** 2
+        mean = weights @ seen / weights.sum()
         measured[t.name] = mean
         out["targets"][t.name] = {
-            "robots": [s.robot for s in sightings if s.target == t.name],
+            "robots": [s.robot for s in mine],
+            "poses": [s.pose_status for s in mine],
+            "weights": (weights / weights.sum()).round(4).tolist(),
             "position": mean.round(5).tolist(),
+            "sd_m": round(float(np.sqrt(1.0 / weights.sum())), 6),
             "spread_m": round(float(max(np.linalg.norm(p - mean) for p in seen)), 6),
             "error_m": round(float(np.linalg.norm(mean - t.position)), 6)}
     primary = next(t for t in targets if t.role == "primary")

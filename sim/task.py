@@ -25,7 +25,9 @@ its slot, and success is judged from where it really ends.
 
 It stops when the measured displacement is below ``stop_m``, after ``max_steps``, or
 when no camera can see the panel any more. Success for each tolerance (a fraction of
-the panel's size) is judged on the true final displacement.
+the panel's size) is judged on the true final displacement. With no target frame
+measured (no camera located the primary target) the task is not attempted and fails
+every tolerance: there is no measured slot to guide to.
 """
 
 from __future__ import annotations
@@ -69,13 +71,24 @@ SETTINGS = StereoSettings()
 COARSE = 2
 
 
+TRUSTED = ("corrected", "as commanded")  # pose statuses measured with at full weight
+
+
 @dataclass
 class Camera:
-    """A placed camera: its robot and believed pose (4x4, MuJoCo camera convention)."""
+    """A placed camera: its robot, believed pose (4x4, MuJoCo camera convention), that
+    pose's uncertainty (m, at a metre) and status (``corrected``, ``uncertain``,
+    ``failed``: not corrected, or ``as commanded`` with correction off)."""
 
     robot: Robot
     believed: np.ndarray
+    pose_sd_m: float = 0.0
+    pose_status: str = "as commanded"
     lost_in_a_row: int = 0
+
+    @property
+    def trusted(self) -> bool:
+        return self.pose_status in TRUSTED
 
 
 @dataclass
@@ -84,6 +97,9 @@ class TaskResult:
 
     size_m: float
     tolerances: tuple[float, ...]
+    attempted: bool = True  # False: no slot to guide to (the target was not located)
+    frame_robots: list[str] = field(default_factory=list)  # whose sightings placed the slot
+    cameras: list[dict[str, Any]] = field(default_factory=list)  # robot, pose status, sd
     final_displacement: np.ndarray | None = None  # true, panel minus slot (m)
     measured_displacement: np.ndarray | None = None  # the last measurement's
     steps: int = 0
@@ -96,7 +112,7 @@ class TaskResult:
     voxels_occupied: int = 0
 
     def success(self) -> dict[str, bool]:
-        error = (np.inf if self.final_displacement is None
+        error = (np.inf if self.final_displacement is None or not self.attempted
                  else float(np.linalg.norm(self.final_displacement)))
         return {f"{t:g}": error <= t * self.size_m for t in self.tolerances}
 
@@ -107,6 +123,9 @@ class TaskResult:
             return None if v is None else round(float(np.linalg.norm(v)), 6)
 
         return {
+            "attempted": self.attempted,
+            "target_frame": {"measured": bool(self.frame_robots), "robots": self.frame_robots},
+            "cameras": self.cameras,
             "object_size_m": self.size_m,
             "final_displacement": None if final is None else final.round(5).tolist(),
             "final_displacement_m": norm(final), "measured_displacement_m": norm(measured),
@@ -195,9 +214,11 @@ class InsertionTask:
     def measure(self, cameras: list[Camera], guess: np.ndarray
                 ) -> tuple[np.ndarray | None, dict[str, str]]:
         """The panel's pose fitted to what the cameras see (None if they cannot), and why
-        each camera that contributed nothing failed. All cameras' points are fitted
-        together; if the CAD model fits them poorly, each camera's alone (most points
-        first), and the first good fit is taken: one poor view does not spoil another."""
+        each camera that contributed nothing failed. The points of every camera whose pose
+        is trusted (corrected, or as commanded with correction off) are fitted together
+        (all cameras' if none is); if the CAD model fits them poorly, each camera's alone
+        (trusted ones first, then most points first), and the first good fit is taken:
+        one poor view, or one uncorrected pose, does not spoil another."""
         seen: dict[str, np.ndarray] = {}
         eyes: dict[str, np.ndarray] = {}
         why: dict[str, str] = {}
@@ -208,10 +229,13 @@ class InsertionTask:
             else:
                 seen[cam.robot.name] = found
                 eyes[cam.robot.name] = np.repeat(cam.believed[None, :3, 3], len(found), axis=0)
-        alone = sorted(seen, key=lambda n: -len(seen[n])) if len(seen) > 1 else []
+        trusted = {c.robot.name for c in cameras if c.trusted}
+        together = [n for n in seen if n in trusted] or list(seen)
+        alone = [n for n in sorted(seen, key=lambda n: (n not in trusted, -len(seen[n])))
+                 if [n] != together]
         failure = "too few panel points"
         limit = MAX_FIT_MEDIAN_M * self.noise_scale
-        for names in [list(seen), *[[n] for n in alone]]:
+        for names in [together, *[[n] for n in alone]]:
             cloud = np.concatenate([seen[n] for n in names]) if names else np.zeros((0, 3))
             if len(cloud) < MIN_POINTS:
                 continue
@@ -221,7 +245,8 @@ class InsertionTask:
             typical, on = float(np.median(off)), float(np.mean(off < 0.01))
             if typical <= limit and on >= MIN_ON_MODEL:
                 for n in seen.keys() - set(names):
-                    why[n] = "its points disagree with the other camera's and the CAD model"
+                    if n in trusted or names != together:  # not merely left out, uncorrected
+                        why[n] = "its points disagree with the other camera's and the CAD model"
                 return pose, why
             failure = (f"the CAD model fits the points to {typical * 1e3:.1f} mm (median), "
                        f"{on:.0%} within 1 cm")
@@ -290,12 +315,24 @@ class InsertionTask:
 
     # ------------------------------------------------------------ the loop
 
+    def not_attempted(self, cameras: list[Camera], why: str) -> TaskResult:
+        """The outcome of a task that could not start: the panel stays where it lies."""
+        result = self._result(cameras, [])
+        result.attempted, result.stopped_by = False, why
+        return result
+
+    def _result(self, cameras: list[Camera], frame_robots: list[str]) -> TaskResult:
+        return TaskResult(self.model.size, self.cfg.tolerances, frame_robots=frame_robots,
+                          cameras=[{"robot": c.robot.name, "pose": c.pose_status,
+                                    "pose_sd_m": round(c.pose_sd_m, 6)} for c in cameras])
+
     def run(self, cameras: list[Camera], slot: np.ndarray,
-            replace: Callable[[Camera, int], dict[str, Any] | None] | None = None
-            ) -> TaskResult:
-        """Carry, then steer the panel into the slot believed at ``slot`` (world, m)."""
+            replace: Callable[[Camera, int], dict[str, Any] | None] | None = None,
+            frame_robots: list[str] | None = None) -> TaskResult:
+        """Carry, then steer the panel into the slot believed at ``slot`` (world, m),
+        which the sightings of ``frame_robots`` placed."""
         cfg = self.cfg
-        result = TaskResult(self.model.size, cfg.tolerances)
+        result = self._result(cameras, frame_robots or [])
         above = np.array([0.0, 0.0, cfg.approach_m])
         lying = self.panel  # where it was picked up: its last known pose
         start = lying[:3, 3].copy()

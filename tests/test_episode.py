@@ -212,7 +212,7 @@ def test_a_misplaced_workpiece_moves_in_the_world_only(tmp_path):
         believed = nominal.site(site).xpos
         expected = centre + rot @ (believed - centre) + [dx, dy, 0.0]
         assert np.allclose(world.site(site).xpos, expected, atol=1e-9)
-    xml, files = e.scene.to_xml(world.qpos.copy(), e.world_bodies())
+    xml, files = e.scene.to_xml({"final": e.world_state()}, e.world_bodies())
     (tmp_path / "scene.xml").write_text(xml)
     for path, content in files.items():
         (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
