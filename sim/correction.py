@@ -110,6 +110,7 @@ class Correction:
     used: list[UsedFiducial] = field(default_factory=list)
     reason: str = ""  # why it failed; empty when ``pose`` is trusted
     recovered_by: str = ""  # "wider search" or "retrace" when the first try failed
+    tried: list[str] = field(default_factory=list)  # the recoveries tried, in order
     retrace_from: np.ndarray | None = None  # joints of the last located frame, to go back to
 
     @property
@@ -137,6 +138,8 @@ class Correction:
                                "fiducials_tracked": self.fiducials_tracked}
         if self.reason:
             out["failed"] = self.reason
+        if self.tried:
+            out["recoveries_tried"] = self.tried
         if self.recovered_by:
             out["recovered_by"] = self.recovered_by
         if self.estimate is not None:
@@ -278,13 +281,14 @@ class PoseCorrector:
         way back and forth, and ``finish`` is called again."""
         tracker = self._tracker
         assert tracker is not None, "begin() first"
-        out = Correction()
+        out = Correction(tried=["wider search", "retrace"] if self._retraced else [])
         located = self._frame(robot, self.nominal_pose(robot, self._joints))
         if not located:
+            if not self._retraced:
+                out.tried.append("wider search")
             located = self._search_wider(robot)
-            out.recovered_by = "wider search" if located else ""
-        if self._retraced:
-            out.recovered_by = "retrace"
+        if located and out.tried:
+            out.recovered_by = out.tried[-1]
         out.frames = len(tracker.frames)
         out.located = sum(f.located for f in tracker.frames)
         out.fiducials_tracked = len(tracker.fiducials)

@@ -126,10 +126,13 @@ def test_episode_reports_the_task(default_run):
     assert {"/world/panel/true", "/world/panel/measured", "/task/displacement_m"} <= paths
 
 
-def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch):
+def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_path):
     """The episode's own re-placement: r1's images are made to miss the panel three
     steps running; the rating function is searched again on the updated map, the robot
-    moves there, and the task records when and why."""
+    moves there, and the task records when and why. The summary then tells where the
+    robot ended: its ``pose`` is ``scene.xml``'s keyframe ``final``, its ``placements``
+    hold both moves with their poses, and its sightings say they were made from the
+    first."""
     import sim.task as task_module
     from sim.episode import Episode
 
@@ -146,14 +149,45 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch):
         return real(self, cam)
 
     monkeypatch.setattr(task_module.InsertionTask, "_panel_points", blind)
-    summary, _, _ = Episode(s).run()
+    summary, xml, files = Episode(s).run()
     task = summary["task"]
     robots = [r["robot"] for r in task["replacements"]]
     assert robots[0] == "r1" and robots.count("r1") == 1  # r2 alone may lose it later
     again = task["replacements"][0]
     assert again["step"] == 2 and "3 steps running" in again["reason"]
-    assert again["placed"] and len(again["candidate_position"]) == 3
+    assert again["placed"] and again["placement"] == 1
     assert task["lost_views"] >= 3 and task["measurements"] >= 1
+
+    r1 = summary["robots"][0]
+    first, second = r1["placements"][:2]
+    assert (first["index"], first["step"], first["reason"]) == (0, None, "initial")
+    assert (second["index"], second["step"], second["placed"]) == (1, 2, True)
+    assert second["reason"] == again["reason"] and len(second["candidate_position"]) == 3
+    assert r1["placement"] == 1 and r1["seen_from_placement"] == 0
+    assert all(seen["placement"] == 0 for seen in r1["sightings"])
+    moved = np.subtract(second["pose"]["position"], first["pose"]["position"])
+    assert np.linalg.norm(moved) > 0.01  # the re-placement really moved the camera
+    assert r1["candidate_position"] == second["candidate_position"]
+    (tmp_path / "scene.xml").write_text(xml)
+    for path, content in files.items():
+        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / path).write_bytes(content)
+    saved = mujoco.MjModel.from_xml_path(str(tmp_path / "scene.xml"))
+    data = mujoco.MjData(saved)
+    # keyframes hold joints and mocap bodies; the mounts' tilt is as it ended, so "look"
+    # shows a robot as it looked only if it did not move again
+    stayed = [(r["camera"], r["placements"][0]["pose"]) for r in summary["robots"]
+              if len(r["placements"]) == 1]
+    assert stayed
+    for key, camera, pose in [("final", r1["camera"], r1["pose"]),
+                              *[("look", c, p) for c, p in stayed]]:
+        mujoco.mj_resetDataKeyframe(saved, data, saved.key(key).id)
+        mujoco.mj_forward(saved, data)
+        cam = data.cam(camera)
+        assert np.linalg.norm(cam.xpos - pose["position"]) < 1e-5, key
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, cam.xmat)
+        assert abs(abs(float(quat @ np.array(pose["quat_wxyz"]))) - 1.0) < 1e-8, key
 
 
 def test_the_left_view_rendered_around_the_panel_finds_what_the_whole_image_does():

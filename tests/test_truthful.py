@@ -1,0 +1,87 @@
+"""Runs that tell the truth (issue 17): a target nobody located is not a success, a
+correction that cannot locate its final frame says so and is not trusted, and the target
+frame weighs each sighting by how well its camera's pose is known."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from sim import load_scenario, parse_scenario
+from sim.episode import Episode
+from sim.scene import Target
+from sim.target_frame import Sighting, common_frame
+
+
+def _targets() -> tuple[Target, ...]:
+    return Episode(parse_scenario({"robots": {"count": 1}})).scene.targets
+
+
+def test_the_target_frame_weighs_sightings_by_their_uncertainty():
+    """Two sightings of the primary, 1 mm and 1 cm uncertain: the measured place is the
+    inverse-variance mean (100 : 1), as computed by hand, with its standard deviation."""
+    targets = _targets()
+    primary = next(t for t in targets if t.role == "primary")
+    good, poor = primary.position + [0.001, 0, 0], primary.position + [0.0, 0.02, 0]
+    seen = [Sighting("r1", primary.name, (0.0, 0.0), 10.0, 1.0, good, 0.001, 0, "corrected"),
+            Sighting("r2", primary.name, (0.0, 0.0), 10.0, 1.0, poor, 0.01, 0, "failed")]
+    out = common_frame(seen, targets)["targets"][primary.name]
+    expected = (100 * good + 1 * poor) / 101
+    assert np.allclose(out["position"], expected.round(5), atol=1e-5)
+    assert out["weights"] == [round(100 / 101, 4), round(1 / 101, 4)]
+    assert out["poses"] == ["corrected", "failed"]
+    assert abs(out["sd_m"] - (1 / (1e6 + 1e4)) ** 0.5) < 1e-6
+
+
+def _enclosed(**overrides: dict) -> dict:
+    """A scenario whose work-piece stands in a closed box (four walls and a roof): no
+    camera outside can see the target."""
+    walls = [{"shape": "box", "position": [x, 0.0, 0.5], "size": [0.02, 0.47, 0.5]}
+             for x in (-0.55, 0.55)]
+    walls += [{"shape": "box", "position": [0.0, y, 0.5], "size": [0.57, 0.02, 0.5]}
+              for y in (-0.45, 0.45)]
+    walls.append({"shape": "box", "position": [0.0, 0.0, 1.02], "size": [0.57, 0.47, 0.02]})
+    return {"camera": {"width": 320, "height": 240, "samples": 0},
+            "mapping": {"max_views": 2}, "obstacles": walls, **overrides}
+
+
+def test_a_target_nobody_located_is_not_a_success():
+    """The paper's baseline ignores occlusion and places the cameras anyway; neither
+    finds the hole, no target frame is measured, and the task is not attempted: it
+    fails every tolerance and says why, instead of guiding the panel to the slot's
+    nominal place and calling it a success."""
+    s = parse_scenario(_enclosed(search={"method": "biased_random", "check_sight": False},
+                                 task={"enabled": True, "max_steps": 2}))
+    summary, _, _ = Episode(s).run()
+    assert not any(r["seen"] for r in summary["robots"])
+    assert summary["target_frame"]["frame"] is None
+    task = summary["task"]
+    assert task["attempted"] is False and task["target_frame"]["measured"] is False
+    assert task["success"] == {"0.2": False, "0.1": False, "0.01": False}
+    assert "primary target" in task["stopped_by"] and task["steps"] == 0
+
+
+def test_a_correction_that_cannot_locate_its_final_frame_says_so():
+    """With fiducials looked for only 0.05 px from their predicted pixels no frame can be
+    located once the positioning error has built up: each robot searches the final
+    frame wider, goes back along its path to the last located frame and forth again,
+    and then reports the failure;
+    its camera keeps the commanded pose, its sightings say so and carry the commanded
+    pose's uncertainty (centimetres, from the positioning errors)."""
+    base = load_scenario()
+    s = dataclasses.replace(
+        base, camera=dataclasses.replace(base.camera, width=320, height=240, samples=0),
+        mapping=dataclasses.replace(base.mapping, max_views=2),
+        correction=dataclasses.replace(base.correction, search_px=0.05),
+        task=dataclasses.replace(base.task, enabled=False))
+    summary, _, _ = Episode(s).run()
+    for robot in summary["robots"]:
+        assert robot["placed"], robot.get("refused")
+        c = robot["correction"]
+        assert c["status"] == "failed" and "final frame" in c["failed"], c
+        assert c["recoveries_tried"] == ["wider search", "retrace"]
+        assert "recovered_by" not in c and "estimated_pose" not in robot
+        assert 1 <= c["frames_located"] < c["frames"]  # near the known start only
+        for seen in robot["sightings"]:
+            assert seen["pose"] == "failed" and seen["sd_m"] > 0.005
