@@ -4,7 +4,8 @@ The stages, in order:
 1. the robots map the target region into the occupancy grid, choosing views by
    expected information (sim/exploration.py);
 2. robot by robot, the rating function is searched over known-free voxels (the robots
-   placed before count as occluders, at their commanded poses); the best candidates are
+   placed before count as occluders, at their commanded poses); the best candidates
+   from which the hole detector can find the target (placement.detectable) are
    tried in turn until one is reachable by collision-avoiding IK (base and arm) along a
    path that keeps clear of everything, and sees its target with no geometry in the
    way; the robot then follows that path in physics, through its position actuators,
@@ -51,6 +52,7 @@ from placement import (
     TargetModel,
     Weights,
     biased_random,
+    detectable,
     information_gain,
     search,
     target_points,
@@ -343,6 +345,9 @@ class Episode:
             position = field_.ratings.positions[i]
             if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in rejected):
                 continue  # next to a candidate that failed: try somewhere else
+            if not detectable(position[None], target_model(target), self.camera_model)[0]:
+                result.undetectable += 1  # too far or too oblique for the hole detector
+                continue
             result.candidates_tried += 1
             rejected.append(position)
             with self.timer("ik"):

@@ -73,6 +73,8 @@ def _outcome(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str
     return {
         "method": method.name, "placement": method.placement, "secondary": method.secondary,
         "success": task.get("success", {}),
+        "attempted": task.get("attempted"),
+        "frame_robots": task.get("target_frame", {}).get("robots", []),
         "final_displacement_m": task.get("final_displacement_m"),
         "steps": task.get("steps"), "measurements": task.get("measurements"),
         "failed_measurements": task.get("failed_measurements"),
