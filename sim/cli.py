@@ -9,7 +9,8 @@ import time
 import traceback
 from pathlib import Path
 
-from .scenario import ScenarioError, load_scenario
+from .results import ResultsError
+from .scenario import MISSING, ScenarioError, load_scenario
 
 EXIT_OK, EXIT_FAILURE, EXIT_INVALID = 0, 1, 2
 
@@ -87,6 +88,11 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _invalid_db(exc: ResultsError, key: str) -> ScenarioError:
+    """A ResultsError as the one-line error of invalid input."""
+    return ScenarioError(str(exc.path), key, MISSING, exc.accepted, problem=exc.found)
+
+
 def sweep(args: argparse.Namespace) -> int:
     from .sweep import load_sweep
 
@@ -95,9 +101,17 @@ def sweep(args: argparse.Namespace) -> int:
         raise ScenarioError("--workers", "workers", args.workers, "an integer >= 1")
     if args.db.exists() and not args.db.is_file():
         raise ScenarioError("--db", "db", str(args.db), "a database file (this is a directory)")
-    from .results import ResultsError
+    from .results import Results
     from .runner import run_sweep
 
+    if args.db.exists() and args.db.stat().st_size > 0:  # before anything starts
+        try:
+            with Results(args.db) as results:  # checks the file, writes nothing yet
+                refused = results.refusal(spec.describe(), args.resume)
+        except ResultsError as exc:
+            raise _invalid_db(exc, "--db") from None
+        if refused is not None:
+            raise _invalid_db(refused, "--db")
     args.db.parent.mkdir(parents=True, exist_ok=True)
     where = f"scheduler {args.scheduler}" if args.scheduler else f"{args.workers} worker(s)"
     _log(f"sweep '{spec.config.name}' ({args.spec}): {spec.config.trials} scenes x "
@@ -105,24 +119,25 @@ def sweep(args: argparse.Namespace) -> int:
     try:
         done = run_sweep(spec, args.db, args.workers, args.scheduler, args.resume)
     except ResultsError as exc:
-        raise ScenarioError("--db", "db", str(args.db), str(exc)) from None
+        raise _invalid_db(exc, "--db") from None
     _log(f"{done.ran} trial(s) run in {done.seconds:.0f} s, {done.already} found done; "
          f"{done.already + done.ran} of {done.total} in {args.db}")
     return EXIT_OK
 
 
 def report(args: argparse.Namespace) -> int:
-    import sqlite3
-
     from .report import report as tables
 
     if not args.db.is_file():
-        raise ScenarioError(str(args.db), "<file>", str(args.db), "a results database file")
+        found = "a directory" if args.db.is_dir() else "no such file"
+        raise ScenarioError(str(args.db), "<file>", MISSING, "a results database file",
+                            problem=found)
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        raise ScenarioError("--out", "out", str(args.out), "a directory (this is a file)")
     try:
-        out = tables(args.db, args.out)
-    except sqlite3.DatabaseError as exc:
-        raise ScenarioError(str(args.db), "<file>", str(args.db),
-                            f"a database written by taskcam sweep ({exc})") from None
+        out = tables(args.db, args.out)  # reads the database only
+    except ResultsError as exc:
+        raise _invalid_db(exc, "<file>") from None
     print(out["markdown"], end="")
     _log("wrote " + ", ".join(str(p) for p in out["paths"].values()))
     return EXIT_OK

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import csv
 import math
-import sqlite3
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .results import Results
+from .results import Results, ResultsError
 
 Z95 = 1.959963984540054
 
@@ -76,21 +75,32 @@ class Cell:
 
 
 def cells(db: str | Path) -> list[Cell]:
-    """Success counts per method, density and tolerance, from the database."""
-    with Results(db) as results:
-        description = results.description()
-        if description is None:
-            raise sqlite3.DatabaseError(f"{db} holds no sweep")
-        densities = description["sweep"]["densities"]
+    """Success counts per method, density and tolerance, from the database (opened
+    read-only). ResultsError if it is not a results database or holds no trial yet."""
+    wanted = "a database written by taskcam sweep, with at least one trial"
+    with Results(db, readonly=True) as results:
+        description = results.description() or {}
+        try:
+            sweep = description["sweep"]
+            densities = sweep["densities"]
+            order = {m["name"]: i for i, m in enumerate(sweep["methods"])}
+        except (KeyError, TypeError, IndexError):
+            raise ResultsError(results.path, "a results database without a sweep's "
+                               "description", wanted) from None
         achieved = dict(results.db.execute(
             "SELECT density_index, AVG(achieved_density) FROM trials GROUP BY density_index"))
         rows = results.db.execute(
             "SELECT o.method, o.placement, o.secondary, s.density_index, s.tolerance, "
             "COUNT(*), SUM(s.success) FROM successes s JOIN outcomes o USING "
             "(density_index, trial, method) GROUP BY o.method, s.density_index, s.tolerance")
-        order = {m["name"]: i for i, m in enumerate(description["sweep"]["methods"])}
-        out = [Cell(method, placement, bool(secondary), densities[d], achieved[d], tol, n, ok)
-               for method, placement, secondary, d, tol, n, ok in rows]
+        try:
+            out = [Cell(method, placement, bool(secondary), densities[d], achieved[d], tol, n, ok)
+                   for method, placement, secondary, d, tol, n, ok in rows]
+        except (KeyError, IndexError):
+            raise ResultsError(results.path, "a results database whose trials do not match "
+                               "its sweep's densities", wanted) from None
+    if not out:
+        raise ResultsError(results.path, "a results database without a finished trial", wanted)
     return sorted(out, key=lambda c: (-c.tolerance, order.get(c.method, 99), c.density))
 
 

@@ -16,8 +16,11 @@ keeps the rest, so tables can be recomputed without rerunning anything.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import shutil
 import sqlite3
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -40,17 +43,107 @@ CREATE TABLE IF NOT EXISTS successes (
 """
 
 
+SQLITE_HEADER = b"SQLite format 3\x00"
+
+
 class ResultsError(ValueError):
-    """A database that cannot take this sweep's results."""
+    """A file that is not a results database, or one that cannot take this sweep's
+    results: ``found`` says what it is, ``accepted`` what would do."""
+
+    def __init__(self, path: Path, found: str, accepted: str) -> None:
+        self.path, self.found, self.accepted = path, found, accepted
+        super().__init__(f"{path}: {found}; accepted: {accepted}")
+
+
+def _columns(db: sqlite3.Connection) -> dict[str, list[str]]:
+    names = [n for (n,) in db.execute("SELECT name FROM sqlite_master WHERE type = 'table' "
+                                      "AND name NOT LIKE 'sqlite_%' ORDER BY name")]
+    return {n: [c[1] for c in db.execute(f"PRAGMA table_info('{n}')")] for n in names}
+
+
+def _expected_columns() -> dict[str, list[str]]:
+    with sqlite3.connect(":memory:") as db:
+        db.executescript(SCHEMA)
+        return _columns(db)
+
+
+TABLES = _expected_columns()  # table -> its columns, from SCHEMA
+
+
+def _rolled_back_copy(path: Path) -> sqlite3.Connection:
+    """An in-memory copy of the database as its last committed transaction left it: SQLite
+    rolls a copy of the file and of its hot journal back, the file itself is not touched."""
+    with tempfile.TemporaryDirectory() as folder:
+        copy = Path(folder) / "copy.sqlite"
+        shutil.copyfile(path, copy)
+        journal = path.with_name(path.name + "-journal")
+        if journal.exists():
+            shutil.copyfile(journal, copy.with_name(copy.name + "-journal"))
+        memory = sqlite3.connect(":memory:")
+        with contextlib.closing(sqlite3.connect(copy)) as source:
+            source.backup(memory)
+    return memory
+
+
+def open_results(path: Path) -> sqlite3.Connection:
+    """A read-only connection to an existing results database (to an in-memory copy if a
+    killed sweep left a transaction to roll back); ResultsError, and the file untouched,
+    if it is not one: not SQLite, or SQLite without taskcam's tables."""
+    what = "a results database written by taskcam sweep"
+    try:
+        with path.open("rb") as f:
+            header = f.read(len(SQLITE_HEADER))
+    except OSError as exc:
+        raise ResultsError(path, f"unreadable ({exc.strerror})", what) from None
+    if header != SQLITE_HEADER:
+        raise ResultsError(path, "not a SQLite database", what)
+    db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+    try:
+        try:
+            tables = _columns(db)
+        except sqlite3.OperationalError as exc:
+            if exc.sqlite_errorname != "SQLITE_READONLY_ROLLBACK":
+                raise
+            db.close()  # a transaction a kill interrupted: read it as rolled back
+            db = _rolled_back_copy(path)
+            tables = _columns(db)
+    except sqlite3.DatabaseError as exc:
+        db.close()
+        raise ResultsError(path, f"an unreadable SQLite database ({exc})", what) from None
+    wrong = sorted(t for t, columns in TABLES.items() if tables.get(t) != columns)
+    if wrong:
+        db.close()
+        missing = [t for t in wrong if t not in tables]
+        found = (f"a SQLite database without taskcam's tables {', '.join(missing)}" if missing
+                 else f"a SQLite database whose tables {', '.join(wrong)} have other columns")
+        raise ResultsError(path, found + f" (it has: {', '.join(tables) or 'no tables'})",
+                           f"{what} (tables {', '.join(TABLES)})")
+    return db
 
 
 class Results:
-    """A sweep's results database."""
+    """A sweep's results database: a new (or empty) file becomes one; an existing file
+    must already be one, else ResultsError and the file is left as it was (opened to
+    write, SQLite rolls back what a killed sweep left unfinished). ``readonly`` opens an
+    existing database only for reading."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, readonly: bool = False) -> None:
         self.path = Path(path)
-        self.db = sqlite3.connect(self.path)
-        self.db.executescript(SCHEMA)
+        if readonly or (self.path.exists() and self.path.stat().st_size > 0):
+            try:
+                ro = open_results(self.path)
+            except ResultsError as exc:
+                if readonly:
+                    raise
+                raise ResultsError(exc.path, exc.found, f"{exc.accepted}, or a new file") from None
+            if readonly:
+                self.db = ro
+                return
+            ro.close()
+            self.db = sqlite3.connect(self.path)
+        else:
+            self.db = sqlite3.connect(self.path)
+            self.db.executescript(SCHEMA)
 
     def close(self) -> None:
         self.db.close()
@@ -64,23 +157,41 @@ class Results:
     # ------------------------------------------------------------ the sweep
 
     def description(self) -> dict[str, Any] | None:
+        """The sweep the database holds (None: none yet)."""
         row = self.db.execute("SELECT value FROM sweep WHERE key = 'description'").fetchone()
-        return None if row is None else json.loads(row[0])
+        if row is None:
+            return None
+        try:
+            description = json.loads(row[0])
+        except (TypeError, ValueError):
+            description = None
+        if not isinstance(description, dict):
+            raise ResultsError(self.path, "a sweep description that is not a JSON object",
+                               "a results database written by taskcam sweep")
+        return description
 
     def start(self, description: dict[str, Any], resume: bool) -> None:
         """Bind the database to a sweep: a new one, or (``resume``) the same one again."""
-        stored = self.description()
-        if stored is None:
+        problem = self.refusal(description, resume)
+        if problem is not None:
+            raise problem
+        if self.description() is None:
             with self.db:
                 self.db.execute("INSERT INTO sweep VALUES ('description', ?)",
                                 (json.dumps(description, sort_keys=True),))
-            return
+
+    def refusal(self, description: dict[str, Any], resume: bool) -> ResultsError | None:
+        """Why this database cannot take the sweep ``description`` (None: it can)."""
+        stored = self.description()
+        if stored is None:
+            return None
         if not resume:
-            raise ResultsError(f"{self.path} already holds results; pass --resume to "
-                               "continue that sweep, or choose another --db")
+            return ResultsError(self.path, "a database that already holds a sweep",
+                                "--resume to continue that sweep, or another --db")
         if _comparable(stored) != _comparable(json.loads(json.dumps(description))):
-            raise ResultsError(f"{self.path} holds a different sweep (its settings or base "
-                               "scenario differ); choose another --db")
+            return ResultsError(self.path, "a database of a different sweep (its settings "
+                                "or base scenario differ)", "another --db")
+        return None
 
     def done(self) -> set[tuple[int, int]]:
         """(density index, trial) of every trial stored."""

@@ -2,7 +2,9 @@
 
 Every field has a default except where noted, so a scenario file states only what it
 changes. An invalid file raises ScenarioError, whose message is one line naming the
-file, the key, the bad value and what is accepted.
+file, the key, the bad value and what is accepted. The checks live in the dataclasses
+(``Checked``): a config built in code or by ``dataclasses.replace`` is checked as a
+parsed one is; the parser adds the file and the key's full name.
 """
 
 from __future__ import annotations
@@ -22,25 +24,70 @@ DEFAULT_SCENARIO = SCENARIO_DIR / "default.toml"
 MAX_ROBOTS = 4
 
 
+def one_line(text: str) -> str:
+    """``text`` with anything unprintable (newlines included) escaped."""
+    return text if text.isprintable() else text.encode("unicode_escape").decode("ascii")
+
+
+MISSING = object()  # the value of a key a file leaves out
+
+
 class ScenarioError(ValueError):
     """An invalid scenario: one line naming file, key, value and what is accepted."""
 
     def __init__(self, source: str, key: str, value: object, accepted: str,
                  problem: str = "bad value") -> None:
         self.source, self.key, self.value, self.accepted = source, key, value, accepted
-        super().__init__(f"{source}: key '{key}': {problem} {value!r}; accepted: {accepted}")
+        self.problem = problem
+        found = problem if value is MISSING else f"{problem} {_shown(value)}"
+        super().__init__(f"{one_line(source)}: key '{one_line(key)}': {found}; "
+                         f"accepted: {one_line(accepted)}")
+
+    def within(self, source: str, prefix: str, table: Mapping[str, Any]) -> ScenarioError:
+        """This error of a field of ``table`` (read from ``source`` at ``prefix``): its key
+        in full, and the value as the file wrote it."""
+        value = table.get(self.key, self.value)
+        key = f"{prefix}.{self.key}" if prefix else self.key
+        return ScenarioError(source, key, value, self.accepted, self.problem)
+
+
+def _shown(value: object) -> str:
+    """A value as a message shows it: tuples as lists, one line, at most 200 characters."""
+    def plain(v: object) -> object:
+        if isinstance(v, tuple | list):
+            return [plain(x) for x in v]
+        if isinstance(v, Mapping):
+            return {k: plain(x) for k, x in v.items()}
+        return v
+
+    text = one_line(repr(plain(value)))
+    return text if len(text) <= 200 else text[:197] + "..."
 
 
 Check = tuple[Callable[[Any], bool], str]
 
 
 def _check(predicate: Callable[[Any], bool], accepted: str, default: Any = dataclasses.MISSING,
-           default_factory: Any = dataclasses.MISSING) -> Any:
-    """A dataclass field whose value must satisfy ``predicate``."""
-    meta = {"check": (predicate, accepted)}
+           default_factory: Any = dataclasses.MISSING, required: bool = False) -> Any:
+    """A dataclass field whose value must satisfy ``predicate``; ``required``: a file
+    must state it even though Python code may leave it to the default."""
+    meta = {"check": (predicate, accepted), "required": required}
     if default_factory is not dataclasses.MISSING:
         return field(default_factory=default_factory, metadata=meta)
     return field(default=default, metadata=meta)
+
+
+class Checked:
+    """A config dataclass whose fields' checks run whenever one is made (parsed, built in
+    code, or ``dataclasses.replace``d): an invalid value never gets in."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            check: Check | None = f.metadata.get("check")
+            value = getattr(self, f.name)
+            if check is not None and value is not None and not check[0](value):
+                source = getattr(self, "source", f"<{type(self).__name__}>")
+                raise ScenarioError(source, f.name, value, check[1])
 
 
 def _positive(default: float) -> Any:
@@ -56,7 +103,7 @@ def _nonnegative(default: float) -> Any:
 
 
 @dataclass(frozen=True)
-class CameraConfig:
+class CameraConfig(Checked):
     """The stereo head: every robot's two cameras share these."""
 
     fovy_deg: float = _check(lambda v: 0 < v < 180, "degrees in (0, 180)", 60.0)
@@ -71,7 +118,7 @@ class CameraConfig:
 
 
 @dataclass(frozen=True)
-class BasePose:
+class BasePose(Checked):
     """A mobile base's start pose on the floor."""
 
     x: float
@@ -80,7 +127,7 @@ class BasePose:
 
 
 @dataclass(frozen=True)
-class RobotsConfig:
+class RobotsConfig(Checked):
     count: int = _check(lambda v: 1 <= v <= MAX_ROBOTS, f"an integer 1 to {MAX_ROBOTS}", 2)
     # Explicit start poses, one per robot; empty: evenly on a circle facing the work-piece.
     bases: tuple[BasePose, ...] = ()
@@ -89,7 +136,7 @@ class RobotsConfig:
 
 
 @dataclass(frozen=True)
-class TargetConfig:
+class TargetConfig(Checked):
     """A circular hole in the plate; offset in the plate frame from its centre (m)."""
 
     name: str = _check(lambda v: v.isidentifier(), "a name of letters, digits and _")
@@ -107,7 +154,7 @@ def _default_targets() -> tuple[TargetConfig, ...]:
 
 
 @dataclass(frozen=True)
-class WorkpieceConfig:
+class WorkpieceConfig(Checked):
     position: tuple[float, float] = (0.0, 0.0)  # floor position of the plate centre (m)
     yaw_deg: float = 0.0
     targets: tuple[TargetConfig, ...] = field(default_factory=_default_targets)
@@ -118,7 +165,7 @@ class WorkpieceConfig:
 
 
 @dataclass(frozen=True)
-class PanelConfig:
+class PanelConfig(Checked):
     position: tuple[float, float, float] = (-0.15, 0.6, 0.0)  # bottom-edge centre (m)
     yaw_deg: float = 0.0
 
@@ -127,14 +174,14 @@ OBSTACLE_SIZES = {"box": 3, "cylinder": 2, "sphere": 1}
 
 
 @dataclass(frozen=True)
-class ObstacleConfig:
+class ObstacleConfig(Checked):
     """A primitive obstacle: box half-extents, cylinder (radius, half-height), sphere radius."""
 
     shape: Literal["box", "cylinder", "sphere"] = "box"
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     size: tuple[float, ...] = _check(
-        lambda v: 1 <= len(v) <= 3 and all(s > 0 for s in v), "1 to 3 numbers > 0", (0.1,)
-    )
+        lambda v: 1 <= len(v) <= 3 and all(s > 0 for s in v), "1 to 3 numbers > 0", (0.1,),
+        required=True)
     yaw_deg: float = 0.0
 
 
@@ -150,7 +197,7 @@ SENSOR_DEFAULTS = {
 
 
 @dataclass(frozen=True)
-class GridConfig:
+class GridConfig(Checked):
     """Voxel occupancy grid and its log-odds sensor model (probabilities; unset: by source)."""
 
     resolution_m: float = _check(lambda v: 0.005 <= v <= 0.5, "metres in [0.005, 0.5]", 0.05)
@@ -164,14 +211,14 @@ class GridConfig:
 
 
 @dataclass(frozen=True)
-class MappingConfig:
+class MappingConfig(Checked):
     """Cooperative mapping: views chosen by expected information, then rendered."""
 
     depth_source: Literal["render", "stereo"] = "render"
     strategy: Literal["cooperative", "single", "random"] = "cooperative"
     gain: Literal["entropy", "unobserved", "rear_side"] = "entropy"
     max_views: int = _check(lambda v: 1 <= v <= 200, "an integer 1 to 200", 12)  # all robots
-    entropy_threshold_bits: float = _check(lambda v: 0 <= v <= 1, "bits in [0, 1]", 0.4)
+    entropy_threshold_bits: float = _check(lambda v: 0 <= v <= 1, "bits in [0, 1]", 0.12)
     region_half_m: tuple[float, float, float] = (0.8, 0.8, 0.6)  # around the primary target
     candidates_per_robot: int = _check(lambda v: 1 <= v <= 500, "an integer 1 to 500", 24)
     gain_stride: int = _check(lambda v: 1 <= v <= 64, "an integer 1 to 64", 16)
@@ -183,7 +230,7 @@ class MappingConfig:
 
 
 @dataclass(frozen=True)
-class RatingConfig:
+class RatingConfig(Checked):
     """Rating function exponents (eq. 1) and occupancy thresholds."""
 
     alpha: float = _nonnegative(1.0)  # depth of field
@@ -203,7 +250,7 @@ class RatingConfig:
 
 
 @dataclass(frozen=True)
-class SearchConfig:
+class SearchConfig(Checked):
     # the placement method: the rating function, the paper's biased random baseline, or
     # next-best-view by expected information gain about the target region
     method: Literal["rating", "biased_random", "information_gain"] = "rating"
@@ -226,7 +273,7 @@ class SearchConfig:
 
 
 @dataclass(frozen=True)
-class MotionConfig:
+class MotionConfig(Checked):
     """How the arms and bases move (in physics), and how imperfectly (sec. 2.4).
 
     The errors are standard deviations; zero is a perfect robot. Joint offsets are drawn
@@ -246,7 +293,7 @@ class MotionConfig:
 
 
 @dataclass(frozen=True)
-class CorrectionConfig:
+class CorrectionConfig(Checked):
     """Correcting each camera's pose from natural fiducials after it moves (sec. 2.4):
     stereo frames are taken along the move, the fiducials tracked through them, and the
     final pose estimated from the best-rated ones (eq. 8) by ``estimator``."""
@@ -262,13 +309,18 @@ class CorrectionConfig:
 
 
 @dataclass(frozen=True)
-class TaskConfig:
+class TaskConfig(Checked):
     """The visually guided insertion (sec. 3): the panel is carried open-loop to a point
     ``approach_m`` above its slot (arriving ``carry_error_m`` off, std per axis), then
     steered by the placed cameras' measurements, step by step, until it stops."""
 
     enabled: bool = False
-    tolerances: tuple[float, ...] = (0.2, 0.1, 0.01)  # of the panel's size
+    # success tolerances, fractions of the panel's size; any order, distinct as the
+    # records name them (6 significant digits)
+    tolerances: tuple[float, ...] = _check(
+        lambda v: len(v) >= 1 and all(0 < t <= 1 for t in v)
+        and len({f"{t:g}" for t in v}) == len(v),
+        "a non-empty list of distinct fractions in (0, 1]", (0.2, 0.1, 0.01))
     approach_m: float = _positive(0.15)
     carry_error_m: float = _nonnegative(0.03)
     step_noise_m: float = _nonnegative(0.001)  # std per axis of each step's execution
@@ -284,8 +336,10 @@ class TaskConfig:
 
 
 @dataclass(frozen=True)
-class Scenario:
-    name: str = "default"
+class Scenario(Checked):
+    # names the run directory: runs/<name>-seed<N>
+    name: str = _check(lambda v: 0 < len(v) <= 100 and v.isprintable() and not set(v) & set("/\\"),
+                       "1 to 100 printable characters but / and \\", "default")
     seed: int = _check(lambda v: v >= 0, "an integer >= 0", 0)
     camera: CameraConfig = field(default_factory=CameraConfig)
     robots: RobotsConfig = field(default_factory=RobotsConfig)
@@ -300,6 +354,10 @@ class Scenario:
     correction: CorrectionConfig = field(default_factory=CorrectionConfig)
     task: TaskConfig = field(default_factory=TaskConfig)
     source: str = "<defaults>"  # the file it was read from
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _validate(self)
 
     def sensor(self) -> tuple[float, float, float, float]:
         """(hit, miss, clamp_min, clamp_max): the grid's, else the depth source's defaults."""
@@ -363,7 +421,10 @@ def _convert(tp: Any, value: Any, key: str, source: str) -> Any:
             return tuple(_convert(args[0], v, f"{key}[{i}]", source) for i, v in enumerate(value))
         if len(value) != len(args):
             raise bad()
-        return tuple(_convert(a, v, key, source) for a, v in zip(args, value, strict=True))
+        try:
+            return tuple(_convert(a, v, key, source) for a, v in zip(args, value, strict=True))
+        except ScenarioError:
+            raise bad() from None  # the whole list, with what it should be
     if origin in (types.UnionType, typing.Union):
         inner = [a for a in typing.get_args(tp) if a is not type(None)]
         if len(inner) != 1:
@@ -390,6 +451,9 @@ def _convert(tp: Any, value: Any, key: str, source: str) -> Any:
 
 
 def _build(cls: type, table: Mapping[str, Any], prefix: str, source: str) -> Any:
+    """An instance of the dataclass ``cls`` from ``table`` (at key ``prefix`` of the file
+    ``source``): unknown keys, missing required ones, wrong types and failed checks raise
+    ScenarioError naming the key in full."""
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "source"}
     for key in table:
@@ -397,19 +461,20 @@ def _build(cls: type, table: Mapping[str, Any], prefix: str, source: str) -> Any
             name = f"{prefix}.{key}" if prefix else key
             raise ScenarioError(source, name, table[key], "keys " + ", ".join(fields),
                                 problem="unknown key, with value")
-    kwargs = {}
+    kwargs = {"source": source} if "source" in {f.name for f in dataclasses.fields(cls)} else {}
     for name, f in fields.items():
         key = f"{prefix}.{name}" if prefix else name
         if name not in table:
-            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise ScenarioError(source, key, None, f"a required {_type_name(hints[name])}")
+            if f.metadata.get("required") or (f.default is dataclasses.MISSING
+                                              and f.default_factory is dataclasses.MISSING):
+                raise ScenarioError(source, key, MISSING,
+                                    f"{_type_name(hints[name])} (required)", problem="missing")
             continue
-        value = _convert(hints[name], table[name], key, source)
-        check: Check | None = f.metadata.get("check")
-        if check is not None and not check[0](value):
-            raise ScenarioError(source, key, table[name], check[1])
-        kwargs[name] = value
-    return cls(**kwargs)
+        kwargs[name] = _convert(hints[name], table[name], key, source)
+    try:
+        return cls(**kwargs)  # the fields' checks and cross-checks (Checked)
+    except ScenarioError as exc:
+        raise exc.within(source, prefix, table) from None
 
 
 def _validate(s: Scenario) -> None:
@@ -450,19 +515,25 @@ def _validate(s: Scenario) -> None:
 
 def parse_scenario(data: Mapping[str, Any], source: str = "<string>") -> Scenario:
     """Build and validate a Scenario from a parsed TOML table."""
-    scenario = _build(Scenario, data, "", source)
-    scenario = dataclasses.replace(scenario, source=source)
-    _validate(scenario)
-    return typing.cast(Scenario, scenario)
+    return typing.cast(Scenario, _build(Scenario, data, "", source))
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    """A TOML file's table; ScenarioError if it cannot be read or parsed."""
+    """A TOML file's table; ScenarioError if it cannot be read, is not UTF-8 text, or is
+    not TOML."""
     try:
-        return tomllib.loads(path.read_text())
+        raw = path.read_bytes()
     except OSError as exc:
         raise ScenarioError(str(path), "<file>", str(path),
                             f"a readable TOML file ({exc.strerror})") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        found = f"byte 0x{raw[exc.start]:02x} at offset {exc.start}"
+        raise ScenarioError(str(path), "<file>", found, "a TOML file in UTF-8",
+                            problem="not UTF-8 text:") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(str(path), "<syntax>", str(exc), "valid TOML") from None
 

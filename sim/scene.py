@@ -136,7 +136,7 @@ class Scene:
         (qpos, mocap positions, mocap quaternions), e.g. ``final``; and the files it reads
         (painted textures, by path relative to it). ``bodies`` overrides named bodies'
         (pos, quat) relative to their parents (the world as it ended, e.g. the arms'
-        tilted mounts)."""
+        tilted mounts), in every keyframe: a keyframe holds only joints and mocap bodies."""
         for name, (pos, quat) in (bodies or {}).items():
             body = self.spec.body(name)
             body.pos, body.quat = list(pos), list(quat)
@@ -286,7 +286,9 @@ def build_scene(s: Scenario) -> Scene:
     qpos = model.qpos0.copy()
     for robot, i in zip(robots, range(len(robots)), strict=True):
         qpos[robot.qpos_adr] = start[9 * i: 9 * i + 9]
-    return Scene(s, spec, model, tuple(robots), targets, qpos, textures)
+    scene = Scene(s, spec, model, tuple(robots), targets, qpos, textures)
+    check_robot_bases(scene)
+    return scene
 
 
 def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:
@@ -300,45 +302,44 @@ def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:
 def check_robot_bases(scene: Scene) -> None:
     """Raise ScenarioError if a robot, at its start configuration, overlaps anything but
     the floor (the work-piece, the panel, an obstacle, another robot), naming the base pose
-    at fault and what it overlaps. Exact for every shape: MuJoCo's signed distance between
-    collision geoms (touching, within a micrometre, is allowed)."""
+    at fault and what it overlaps. Exact for every shape and height: MuJoCo's signed
+    distance between collision geoms (touching, to a micrometre, is allowed)."""
     model, data, s = scene.model, scene.make_data(), scene.scenario
-    owner = {int(b): i for i, r in enumerate(scene.robots) for b in r.body_ids}
+    robot_of = {int(b): i for i, r in enumerate(scene.robots) for b in r.body_ids}
     floor = model.geom("floor").id
     solid = [g for g in range(model.ngeom) if g != floor
              and (model.geom_contype[g] or model.geom_conaffinity[g])]
+    nobody = len(scene.robots)  # the owner of what is not a robot's
+    owner = {g: robot_of.get(int(model.geom_bodyid[g]), nobody) for g in solid}
     radius = np.where(model.geom_rbound > 0, model.geom_rbound, np.inf)
     fromto = np.zeros(6)
 
-    def what(g: int) -> str:
-        body = model.body(int(model.geom_bodyid[g])).name
-        name = model.geom(g).name or body
-        i = owner.get(int(model.geom_bodyid[g]))
-        if i is not None:
-            return f"{name} of robot r{i + 1} (robots.bases[{i}])"
-        if name.startswith("obstacle"):
-            return f"obstacles[{name[8:].split('/')[0]}] (a {name.split('/')[-1]})"
-        return name
+    def name(g: int, own: bool = False) -> str:
+        text = model.geom(g).name or model.body(int(model.geom_bodyid[g])).name
+        i = owner[g]
+        if i < nobody:
+            return f"{text} (robots.bases[{i}])" if s.robots.bases and not own else text
+        if text.startswith("obstacle"):
+            index, shape = text.removeprefix("obstacle").split("/")
+            return f"obstacles[{index}] (a {shape})"
+        return text
 
-    for i, robot in enumerate(scene.robots):
-        own = [g for g in solid if owner.get(int(model.geom_bodyid[g])) == i]
-        others = [h for h in solid if owner.get(int(model.geom_bodyid[h]), len(owner)) > i]
+    for i in range(len(scene.robots)):
+        own = [g for g in solid if owner[g] == i]
+        others = [h for h in solid if owner[h] > i]  # each pair once
         for g in own:
             for h in others:
-                apart = np.linalg.norm(data.geom_xpos[g] - data.geom_xpos[h])
-                if apart > radius[g] + radius[h]:
-                    continue
+                if np.linalg.norm(data.geom_xpos[g] - data.geom_xpos[h]) > radius[g] + radius[h]:
+                    continue  # bounding spheres apart
                 depth = -mujoco.mj_geomDistance(model, data, g, h, 0.0, fromto)
                 if depth <= 1e-6:
                     continue
-                inside = (f"{what(g).split(' of ')[0]} of {robot.name} overlaps {what(h)} "
-                          f"by {depth * 1000:.0f} mm")
+                where = f"here {name(g, own=True)} overlaps {name(h)} by {1000 * depth:.0f} mm"
                 if s.robots.bases:
                     b = s.robots.bases[i]
                     raise ScenarioError(s.source, f"robots.bases[{i}]",
                                         {"x": b.x, "y": b.y, "yaw_deg": b.yaw_deg},
-                                        f"a start pose clear of everything but the floor; "
-                                        f"here the {inside}")
+                                        f"a start pose clear of everything but the floor; {where}")
                 raise ScenarioError(s.source, "robots.start_radius_m", s.robots.start_radius_m,
                                     f"a radius at which every robot stands clear of everything "
-                                    f"but the floor; here the {inside}")
+                                    f"but the floor; {where}")

@@ -34,6 +34,7 @@ import numpy as np
 
 from .scenario import (
     SCENARIO_DIR,
+    Checked,
     Scenario,
     ScenarioError,
     _build,
@@ -46,7 +47,7 @@ Placement = Literal["rating", "biased_random", "information_gain"]
 
 
 @dataclass(frozen=True)
-class MethodConfig:
+class MethodConfig(Checked):
     """A placement method, run on every scene of the sweep."""
 
     name: str = _check(lambda v: v.replace("_", "").isalnum(), "letters, digits and _",
@@ -64,14 +65,14 @@ def _paper_methods() -> tuple[MethodConfig, ...]:
 
 
 @dataclass(frozen=True)
-class SweepConfig:
+class SweepConfig(Checked):
     name: str = "sweep"
     scenario: str = "default.toml"  # the base scenario
     seed: int = _check(lambda v: v >= 0, "an integer >= 0", 0)
     trials: int = _check(lambda v: v >= 1, "an integer >= 1", 300)  # per density
     densities: tuple[float, ...] = _check(
-        lambda v: len(v) >= 1 and all(0 <= d < 0.9 for d in v),
-        "a non-empty list of fractions in [0, 0.9)", (0.05, 0.2, 0.35))
+        lambda v: len(v) >= 1 and all(0 <= d < 0.9 for d in v) and len(set(v)) == len(v),
+        "a non-empty list of distinct fractions in [0, 0.9)", (0.05, 0.2, 0.35))
     methods: tuple[MethodConfig, ...] = _check(
         lambda v: len(v) >= 1 and len({m.name for m in v}) == len(v),
         "a non-empty list of methods with unique names", default_factory=_paper_methods)
@@ -96,6 +97,11 @@ class Sweep:
                 "scenario": dataclasses.asdict(dataclasses.replace(self.scenario, source=""))}
 
 
+# Scenario keys a sweep sets for each trial itself, and why
+GENERATED = {"obstacles": "each trial generates its own at the sweep's densities",
+             "seed": "each trial is seeded from the sweep's seed, density and trial"}
+
+
 def _merge(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
     out = dict(base)
     for key, value in overrides.items():
@@ -115,6 +121,10 @@ def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     if not isinstance(overrides, Mapping):
         raise ScenarioError(str(path), "overrides", overrides,
                             "a table of scenario tables to override")
+    for key, why in GENERATED.items():
+        if key in overrides:
+            raise ScenarioError(str(path), f"overrides.{key}", overrides[key],
+                                f"no override: {why}", problem="not overridable, with value")
     data.setdefault("name", path.stem)
     config: SweepConfig = _build(SweepConfig, data, "", str(path))
     if trials is not None:
@@ -134,4 +144,7 @@ def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     scenario = parse_scenario(_merge(base, {**overrides, "obstacles": []}), source)
     if not scenario.task.enabled:
         raise ScenarioError(source, "task.enabled", False, "true: a sweep judges the task")
+    from .scene import build_scene  # imports mujoco
+
+    build_scene(scenario)  # the robots' bases clear of the work-piece and of each other
     return Sweep(config, scenario, str(path))

@@ -1,0 +1,235 @@
+"""One source of truth for defaults: the README's scenario table, the code's schema and
+the shipped scenario and sweep files agree."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import tomllib
+import typing
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from sim.scenario import (
+    SCENARIO_DIR,
+    SENSOR_DEFAULTS,
+    Scenario,
+    _convert,
+    load_scenario,
+    parse_scenario,
+)
+from sim.sweep import load_sweep
+
+ROOT = Path(__file__).resolve().parent.parent
+SHIPPED = sorted(SCENARIO_DIR.glob("*.toml"))
+SWEEPS = [p for p in SHIPPED if "scenario" in tomllib.loads(p.read_text())]
+SCENARIOS = [p for p in SHIPPED if p not in SWEEPS]
+# What a scenario file is about, its scene, rather than a setting with a default.
+LAYOUT = {"name", "robots.bases", "workpiece.targets", "obstacles"}
+
+
+def schema(cls: type = Scenario, prefix: str = "") -> dict[str, tuple[type, dataclasses.Field]]:
+    """Every key of the scenario schema -> (the dataclass holding it, its field). Tables
+    are walked into; a list of tables is a key, and so is each of its tables' keys
+    (``robots.bases[].x``)."""
+    hints = typing.get_type_hints(cls)
+    keys: dict[str, tuple[type, dataclasses.Field]] = {}
+    for f in dataclasses.fields(cls):
+        if f.name == "source":
+            continue
+        tp, key = hints[f.name], prefix + f.name
+        if dataclasses.is_dataclass(tp):
+            keys |= schema(typing.cast(type, tp), key + ".")
+            continue
+        keys[key] = (cls, f)
+        args = typing.get_args(tp)
+        if typing.get_origin(tp) is tuple and args and dataclasses.is_dataclass(args[0]):
+            keys |= schema(args[0], key + "[].")
+    return keys
+
+
+def default_of(f: dataclasses.Field) -> Any:
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return f.default
+
+
+def required(f: dataclasses.Field) -> bool:
+    """Must a file state this key?"""
+    return bool(f.metadata.get("required")) or (
+        f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
+
+
+def readme_table() -> list[tuple[list[str], list[str], str]]:
+    """The README's scenario table: per row, the keys (``camera.fovy_deg``,
+    ``obstacles[].size``), the defaults as written (one per key), the meaning."""
+    text = (ROOT / "README.md").read_text()
+    section = text[text.index("## Scenario format"):]
+    section = section[:section.index("\n## ", 5)]
+    rows = []
+    for line in section.splitlines():
+        if not line.startswith("| `"):
+            continue
+        key_cell, default_cell, meaning = line.strip()[2:-2].split(" | ", 2)
+        spans = re.findall(r"`([^`]*)`", key_cell)
+        assert re.fullmatch(r"(`[^`]*`[ ,]*)+", key_cell), key_cell
+        header = re.fullmatch(r"(\[\[?)([\w.]+)\]\]?", spans[0])
+        prefix = ""
+        if header:
+            spans = spans[1:]
+            prefix = header[2] + ("[]." if header[1] == "[[" else ".")
+        keys = [prefix + s for s in spans]
+        defaults = [d.strip() for d in re.findall(r"`[^`]*`|[^,`]+", default_cell) if d.strip()]
+        if len(defaults) == 1:
+            defaults *= len(keys)
+        assert len(defaults) == len(keys), f"one default per key: {line}"
+        rows.append((keys, defaults, meaning))
+    return rows
+
+
+def parse_literal(text: str) -> Any:
+    return tomllib.loads(f"v = {text}")["v"]
+
+
+def file_values(path: Path) -> dict[str, Any]:
+    """Key -> value of every setting a scenario file states (lists of tables whole)."""
+    out: dict[str, Any] = {}
+
+    def walk(table: dict[str, Any], prefix: str) -> None:
+        for k, v in table.items():
+            if isinstance(v, dict):
+                walk(v, f"{prefix}{k}.")
+            else:
+                out[prefix + k] = v
+    walk(tomllib.loads(path.read_text()), "")
+    return out
+
+
+def value_at(s: Scenario, key: str) -> Any:
+    for part in key.split("."):
+        s = getattr(s, part)
+    return s
+
+
+# Defaults the table states in words, and what each means of the code's default.
+PROSE = {
+    ("name", "file stem"): lambda _: True,  # test_an_unnamed_file_is_named_by_its_stem
+    ("robots.bases", "on a circle"): lambda d: d == () and all(
+        math.isclose(math.hypot(b.x, b.y), Scenario().robots.start_radius_m)
+        for b in Scenario().base_poses()),
+    ("workpiece.targets", "primary + secondary"):
+        lambda d: [t.role for t in d] == ["primary", "secondary"],
+    ("obstacles", "none"): lambda d: d == (),
+    **{(f"grid.{k}", "by depth source"): lambda d: d is None
+       for k in ("hit", "miss", "clamp_min", "clamp_max")},
+}
+
+
+def test_every_key_of_the_schema_is_in_the_readme_table_and_no_other():
+    in_table = [k for keys, _, _ in readme_table() for k in keys]
+    assert len(in_table) == len(set(in_table)), "a key listed twice"
+    assert sorted(in_table) == sorted(schema()), (
+        f"not in the README: {sorted(set(schema()) - set(in_table))}; "
+        f"not in the code: {sorted(set(in_table) - set(schema()))}")
+
+
+def test_every_default_in_the_readme_table_is_the_codes():
+    """A default written as a TOML literal must, read by the scenario parser itself, equal
+    the dataclass field's default; one written in words must be one the test knows and
+    match what it says; "required" must be a key files have to state."""
+    for keys, defaults, _ in readme_table():
+        for key, written in zip(keys, defaults, strict=True):
+            owner, f = schema()[key]
+            if written == "required":
+                assert required(f), f"{key}: the README says required; the code has a default"
+                continue
+            assert not required(f), f"{key} is required in files; the README gives a default"
+            if written.startswith("`"):
+                hint = typing.get_type_hints(owner)[f.name]
+                stated = _convert(hint, parse_literal(written[1:-1]), key, "README.md")
+                assert stated == default_of(f), (
+                    f"{key}: README says {written}, the code {default_of(f)!r}")
+            else:
+                check = PROSE.get((key, written))
+                assert check is not None, f"{key}: {written!r} is neither `literal` nor known"
+                assert check(default_of(f)), f"{key}: {default_of(f)!r} is not {written!r}"
+
+
+def test_the_sensor_models_in_the_readme_are_the_codes():
+    meaning = next(m for keys, _, m in readme_table() if "grid.hit" in keys)
+    stated = {src: tuple(float(v) for v in vals.split(" / ")) for src, vals in
+              re.findall(r"`(\w+)` ([\d.]+(?: / [\d.]+){3})", meaning)}
+    assert stated == SENSOR_DEFAULTS
+
+
+def test_the_mapping_threshold_is_the_same_with_or_without_the_default_file():
+    """The drift of issue 17: 0.12 bits in the README and default.toml, 0.4 in the code."""
+    assert parse_scenario({}).mapping.entropy_threshold_bits == 0.12
+    assert load_scenario().mapping.entropy_threshold_bits == 0.12
+
+
+def test_an_unnamed_file_is_named_by_its_stem(tmp_path):
+    path = tmp_path / "my-scene.toml"
+    path.write_text("seed = 3\n")
+    assert load_scenario(path).name == "my-scene"
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
+def test_a_shipped_scenario_parses_and_builds(path):
+    from sim import build_scene
+
+    s = load_scenario(path)  # unknown keys, types and ranges: ScenarioError
+    assert set(file_values(path)) <= set(schema())
+    build_scene(s)  # the targets on the plate and in the grid, the robots clear
+
+
+@pytest.mark.parametrize("path", SWEEPS, ids=lambda p: p.name)
+def test_a_shipped_sweep_parses(path):
+    sweep = load_sweep(path)  # its keys, its base scenario and the overrides
+    assert sweep.scenario.task.enabled and sweep.config.trials >= 1
+
+
+def declared() -> dict[str, dict[str, Any]]:
+    """What the README's table says a shipped file sets: file -> key -> value, from
+    phrases like "`default.toml` sets `0.5`, `0.05`" (one value per key of the row)."""
+    out: dict[str, dict[str, Any]] = {}
+    for keys, _, meaning in readme_table():
+        for name, values in re.findall(r"`([\w-]+\.toml)` sets ((?:`[^`]*`(?:, )?)+)", meaning):
+            literals = re.findall(r"`([^`]*)`", values)
+            assert len(literals) == len(keys), f"one value per key: {meaning}"
+            for key, literal in zip(keys, literals, strict=True):
+                out.setdefault(name, {})[key] = parse_literal(literal)
+    return out
+
+
+def test_what_the_readme_says_a_shipped_file_sets_is_what_it_sets():
+    said = declared()
+    assert set(said) <= {p.name for p in SHIPPED}
+    for name, values in said.items():
+        path = SCENARIO_DIR / name
+        s = load_sweep(path).scenario if path in SWEEPS else load_scenario(path)
+        for key, value in values.items():
+            assert value_at(s, key) == value, f"{name}: {key} is {value_at(s, key)!r}"
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
+def test_a_shipped_scenario_restates_defaults_truly(path):
+    """A shipped scenario may restate a setting, as a reader's reference; it then must be
+    the code's default, or a departure the README's table declares ("`default.toml`
+    sets ...", checked above). So a default that moves in the code (or a value that moves
+    in the file) fails here instead of silently splitting scenarios that state the key
+    from those that leave it out, as ``mapping.entropy_threshold_bits`` did (0.12 in
+    default.toml and the README, 0.4 in the code). The scene itself (robots' bases,
+    targets, obstacles, name) is what a scenario is for, and exempt."""
+    s = load_scenario(path)
+    allowed = declared().get(path.name, {})
+    for key in file_values(path):
+        if key in LAYOUT or key in allowed:
+            continue
+        f = schema()[key][1]
+        assert value_at(s, key) == default_of(f), (
+            f"{path.name} sets {key} = {value_at(s, key)!r}, the code's default is "
+            f"{default_of(f)!r}: make them agree, or declare the departure in the README")
