@@ -352,14 +352,14 @@ class Episode:
             rejected.append(position)
             with self.timer("ik"):
                 plan = planner.plan(robot, target.position, position)
-            reason = plan.reason
-            if reason is None and q.check_sight and blocked_rays(
+            why = plan.reason
+            if why is None and q.check_sight and blocked_rays(
                     self.nominal, belief, robot, target_points(target_model(target))):
-                reason = "occluded"
+                why = "occluded"
                 self._set_belief(robot, start)
-            if reason is not None:
-                result.rejections[reason] += 1
-                if reason == "unreachable" and len(result.unreachable) < 5:
+            if why is not None:
+                result.rejections[why] += 1
+                if why == "unreachable" and len(result.unreachable) < 5:
                     result.unreachable.append({
                         "position": position.round(4).tolist(),
                         "position_error_m": round(plan.ik.position_error_m, 5),
