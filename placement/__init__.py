@@ -1,5 +1,6 @@
 """Camera placement: the rating function (eq. 1-4), visibility and search. Free of MuJoCo."""
 
+from .detectability import DetectorLimits, detectable
 from .next_best_view import information_gain, look_at
 from .occluders import Hull, above_plane, expand, expanded_hulls, grid_occluders, target_outline
 from .rating import (
@@ -29,6 +30,7 @@ from .visibility import line_of_sight
 __all__ = [
     "CameraModel",
     "ClearanceMap",
+    "DetectorLimits",
     "Hull",
     "RatingField",
     "Ratings",
@@ -43,6 +45,7 @@ __all__ = [
     "circle_in_plane",
     "clearance_map",
     "depth_of_field",
+    "detectable",
     "expand",
     "expanded_hulls",
     "grid_occluders",
