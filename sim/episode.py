@@ -345,9 +345,10 @@ class Episode:
             position = field_.ratings.positions[i]
             if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in rejected):
                 continue  # next to a candidate that failed: try somewhere else
-            if not detectable(position[None], target_model(target), self.camera_model)[0]:
+            if not detectable(position[None], target_model(target), self.camera_model,
+                              baseline_m=s.camera.baseline_m)[0]:
                 result.undetectable += 1  # too far or too oblique for the hole detector
-                continue
+                continue  # (in either stereo image: sightings need both)
             result.candidates_tried += 1
             rejected.append(position)
             with self.timer("ik"):
