@@ -460,7 +460,7 @@ class Episode:
             if found is not None:
                 reach = float(np.linalg.norm(found.position - believed[:3, 3]))
                 pose_sd = math.hypot(position_sd, reach * math.radians(rotation_sd))
-                found = dataclasses.replace(found, sd_m=math.hypot(found.sd_m, pose_sd),
+                found = dataclasses.replace(found, sd_m=pose_sd,
                                             placement=p.index,
                                             pose_status=self.pose_status(p))
                 self.sightings.append(found)
@@ -478,8 +478,10 @@ class Episode:
         return "as commanded" if p.correction is None else p.correction.status
 
     def world_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The world's joints and mocap bodies (positions, quaternions) as they are now."""
+        """The world's joints and mocap bodies (positions, quaternions) as they are now,
+        its poses brought up to them (after a physics step they lag by that step)."""
         d = self.data
+        mujoco.mj_forward(self.model, d)
         return d.qpos.copy(), d.mocap_pos.copy(), d.mocap_quat.copy()
 
     def run(self, recorder: Recorder | None = None
@@ -537,6 +539,7 @@ class Episode:
         truth, as in ``scene.xml``'s keyframe ``final``) and the placement it ended at,
         every placement in order, and what it saw from the placement it looked from."""
         robot = placements[0].robot
+        mujoco.mj_forward(self.model, self.data)  # poses where the joints now are
         final = camera_pose(self.data, robot.camera)
         ended = next((p for p in reversed(placements) if p.placed), None)
         current = (ended or placements[-1]).summary()

@@ -25,9 +25,6 @@ from mapping import Pinhole, opencv_pose, world_to_camera
 from .scene import Target
 
 POSE_SLACK_PX = 40.0  # how far a believed pose may misplace a target in the image
-# The hole centres' disparity error (px): template matching places a centre to a few
-# tenths of a pixel, as the correction's keypoints (correction.pixel_sigma 0.3 px).
-DISPARITY_SD_PX = 0.3
 
 
 @dataclass(frozen=True)
@@ -40,7 +37,10 @@ class Sighting:
     disparity: float  # pixels
     score: float  # the left template match
     position: np.ndarray  # world (m), through the believed camera pose
-    sd_m: float = 0.0  # of ``position``: stereo depth and the believed pose's uncertainty
+    # of ``position``, from the believed camera pose's uncertainty; the sighting's own
+    # stereo error is left out: not measured, and its bias near the camera (the hole's
+    # ellipse centre off its projected centre, docs/detector_limits.md) is no noise
+    sd_m: float = 0.0
     placement: int = 0  # which of the robot's placements it was made from
     pose_status: str = "as commanded"  # of the believed pose (corrected, failed, ...)
 
@@ -93,9 +93,8 @@ def sight(robot: str, left: np.ndarray, right: np.ndarray, target: Target,
     d = found.u - other.u
     camera = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, baseline_m)
     in_cam = camera.point(np.array([found.u, found.v, d]))
-    depth_sd = float(in_cam[2]) ** 2 / (pinhole.fx * baseline_m) * DISPARITY_SD_PX
     return Sighting(robot, target.name, (found.u, found.v), d, found.score,
-                    T[:3, :3] @ in_cam + T[:3, 3], depth_sd)
+                    T[:3, :3] @ in_cam + T[:3, 3])
 
 
 def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict[str, Any]:
