@@ -454,9 +454,16 @@ class Episode:
             return rows
         believed = believed_pose(p)
         position_sd, rotation_sd = self.believed_sd(p)
+        predicted = {t.name: disk[0] for t in self.targets
+                     if (disk := projected_disk(t, opencv_pose(believed), self.pinhole))}
         for t in self.targets:
             found = sight(robot.name, left, right, t, believed, self.pinhole,
                           self.s.camera.baseline_m)
+            if found is not None and t.name in predicted:
+                gap = {n: float(np.linalg.norm(np.subtract(found.pixel, c)))
+                       for n, c in predicted.items()}
+                if min(gap, key=gap.__getitem__) != t.name:
+                    continue  # nearer where another target should be: not claimed as this one
             if found is not None:
                 reach = float(np.linalg.norm(found.position - believed[:3, 3]))
                 pose_sd = math.hypot(position_sd, reach * math.radians(rotation_sd))
