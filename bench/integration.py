@@ -15,12 +15,14 @@ import sys
 import time
 from pathlib import Path
 
+import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+
+# isort: split
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import print_table, write_results
 
-import sim  # noqa: F401  (GL backend before mujoco)
 from mapping import (
     OccupancyGrid,
     Pinhole,

@@ -18,6 +18,9 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+
+# isort: split
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -27,7 +30,6 @@ TARGET_M, TARGET_DEG = 0.003, 0.2
 
 
 def one_seed(seed: int) -> list[dict[str, Any]]:
-    import sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
     from sim.episode import Episode
     from sim.scenario import load_scenario
 

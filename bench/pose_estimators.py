@@ -19,12 +19,13 @@ import argparse
 import sys
 from pathlib import Path
 
+import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+
+# isort: split
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import write_results
-
-import sim  # noqa: F401  (GL backend before mujoco)
 
 # isort: split
 from calibration.ekf import StereoCamera

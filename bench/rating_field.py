@@ -29,12 +29,13 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+
+# isort: split
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import print_table, write_results
-
-import sim  # noqa: F401  (GL backend before mujoco)
 
 # isort: split
 import mujoco

@@ -1,10 +1,13 @@
 """The MuJoCo side of taskcam: scenes, rendering, IK, episodes and the CLI.
 
-The GL backend is chosen here, before anything imports mujoco.
+The processor-dependent code paths are pinned (sim/determinism.py) and the GL backend
+is chosen here, before anything imports numpy, cv2 or mujoco.
 """
 
+from .determinism import is_command, pin
 from .gl import resolve_gl_backend
 
+pin(restart=is_command())  # the taskcam command starts again, pinned, if it was not
 resolve_gl_backend()
 
 from .render import Renderer, camera_pinhole, camera_pose  # noqa: E402
@@ -23,5 +26,6 @@ __all__ = [
     "camera_pose",
     "load_scenario",
     "parse_scenario",
+    "pin",
     "resolve_gl_backend",
 ]

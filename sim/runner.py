@@ -3,7 +3,10 @@ distributed cluster; each finished trial is stored at once (one transaction), so
 interrupted sweep resumes where it stopped, without losing or repeating a trial.
 
 Trials are independent and seeded by their own indices (sim/sweep.py), so the stored
-rows are the same whichever worker ran which trial, and in whatever order they ended.
+rows are the same whichever worker ran which trial, and in whatever order they ended;
+and, their processes pinned to the same code paths (sim/determinism.py), on whichever
+machine. A trial runs in this process only if it started pinned; otherwise in a worker
+process started with the pinned environment.
 """
 
 from __future__ import annotations
@@ -15,13 +18,14 @@ import signal
 import time
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager, nullcontext, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
+from .determinism import PINS, late_imports, pin, started_pinned
 from .results import Results
 from .sweep import Sweep
 from .trial import TrialSpec, run_trial
@@ -52,6 +56,7 @@ def _worker_init() -> None:
     with suppress(OSError, AttributeError):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    pin()  # inherited already; in case a worker is started otherwise
     import sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
 
 
@@ -76,14 +81,29 @@ def one_thread_each() -> Iterator[None]:
                 os.environ[k] = v
 
 
+def pinned_here() -> bool:
+    """Whether trials may run in this process: it started with the pinned environment
+    and no library chose its code before :func:`pin` set it."""
+    return started_pinned() and not late_imports()
+
+
+@contextmanager
+def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+    """``workers`` local worker processes, started with the pinned environment (and, more
+    than one, single-threaded); each dies with this process."""
+    pin()
+    context = multiprocessing.get_context("spawn")  # no GL context or renderer is inherited
+    with (one_thread_each() if workers > 1 else nullcontext()), ProcessPoolExecutor(
+            workers, mp_context=context, initializer=_worker_init) as pool:
+        yield pool
+
+
 def _local(specs: list[TrialSpec], workers: int) -> Iterator[dict[str, Any]]:
-    if workers == 1:
+    if workers == 1 and pinned_here():
         for spec in specs:
             yield run_trial(spec)
         return
-    context = multiprocessing.get_context("spawn")  # no GL context or renderer is inherited
-    with one_thread_each(), ProcessPoolExecutor(workers, mp_context=context,
-                                                initializer=_worker_init) as pool:
+    with worker_pool(workers) as pool:
         pending: set[Future[dict[str, Any]]] = set()
         queue = iter(specs)
         try:
@@ -107,6 +127,13 @@ def _dask(specs: list[TrialSpec], address: str) -> Iterator[dict[str, Any]]:
     from distributed import Client, as_completed
 
     with Client(address) as client:
+        unpinned = sorted(w for w, ok in client.run(pinned_here).items() if not ok)
+        if unpinned:
+            raise RuntimeError(
+                f"Dask worker(s) {', '.join(unpinned)} did not start with taskcam's pinned "
+                f"environment ({', '.join(PINS)}); their results would depend on their "
+                "processor. Start them with `python -m sim.pinned dask worker ADDRESS`, "
+                "or from a process that imported sim (docs/reproducibility.md)")
         futures = client.map(run_trial, specs, pure=False)
         try:
             for future in as_completed(futures):

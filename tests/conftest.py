@@ -10,6 +10,19 @@ from pathlib import Path
 import pytest
 
 import sim  # noqa: F401  (GL backend before mujoco)
+from sim.determinism import is_pytest, pin, started_pinned
+
+pin()  # processor-independent code paths here and in every process a test starts
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """A session started without the pins starts again with them: glibc reads its part
+    only when a process starts (sim/determinism.py)."""
+    if is_pytest() and not started_pinned():
+        capture = config.pluginmanager.getplugin("capturemanager")
+        if capture is not None:
+            capture.stop_global_capturing()  # the new session writes to the terminal
+        pin(restart=True)
 
 ROOT = Path(__file__).resolve().parent.parent
 TASKCAM = Path(sys.executable).parent / "taskcam"

@@ -1,16 +1,23 @@
 """A reduced Table 1 in CI: scenarios/regression.toml (a dozen paired scenes per
 density) through ``taskcam sweep``, and the paper's pattern asserted on it.
 
-Trials are seeded, so the counts are the same on every run; the bounds are what makes
-this a regression test: each asks for a clear effect (a one-sided sign test on the
-paired scenes, or a margin of scenes), so that an algorithm change that breaks the
-pattern fails here, and one that leaves it intact does not. Measured at the time of
-writing (successes of 12 at 5 / 20 / 35 %): at 20 % tolerance optimal 11 / 10 / 6,
-without secondary targets 11 / 6 / 5, biased random 8 / 7 / 2; at 10 %: 9 / 9 / 4,
-8 / 3 / 3, 4 / 1 / 0 (sign test at 5 and 20 %, 10 % tolerance: 13 wins, 0 losses,
-p = 0.0001). The outcomes are sensitive: with four steps, the panel reaches the slot
-only if it is measured within 5 mm of it early, so an algorithm change that leaves the
-measurement as accurate still moves a few scenes either way.
+Trials are seeded and every process runs the same code paths whatever its processor
+(sim/determinism.py, docs/reproducibility.md), so the counts are the same on every run
+and every machine; the bounds are what makes this a regression test: each asks for a
+clear effect (a one-sided sign test on the paired scenes, or a margin of scenes), so
+that an algorithm change that breaks the pattern fails here, and one that leaves it
+intact does not. Measured with the pinned code paths at c1b1fc7 (successes of 12 at
+5 / 20 / 35 %): at 20 % tolerance optimal 12 / 8 / 8, without secondary targets
+10 / 8 / 5, biased random 9 / 8 / 1; at 10 %: 7 / 8 / 6, 7 / 4 / 4, 5 / 1 / 0 (sign
+test at 5 and 20 %, 10 % tolerance: 12 wins, 3 losses, p = 0.018). These miss three
+bounds: the sign test, optimal over random at 20 % density and tolerance (8 = 8), and
+the fall from 5 to 35 % at 10 % tolerance (7 against 6 + 2). Pinned at 8a2651b they
+held (11 / 9 / 5, 10 / 7 / 5, 8 / 6 / 2; 7 / 8 / 3, 5 / 3 / 4, 5 / 0 / 0; 12 wins,
+2 losses, p = 0.0065); unpinned, this machine (AVX-512) gave at c1b1fc7 11 / 8 / 8,
+10 / 7 / 5, 9 / 9 / 1; 8 / 6 / 6, 9 / 4 / 3, 5 / 2 / 0 (8 wins, 1 loss). The outcomes
+are sensitive: with four steps, the panel reaches the slot only if it is measured
+within 5 mm of it early, so an algorithm change that leaves the measurement as
+accurate still moves a few scenes either way.
 """
 
 from __future__ import annotations
