@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
     from .episode import Episode  # imports mujoco: after the arguments are known good
     from .record import Recorder
+    from .scene import save_scene
 
     episode = Episode(scenario)  # builds the scene: the last check of the input
     out.mkdir(parents=True, exist_ok=True)
@@ -75,10 +76,7 @@ def run(args: argparse.Namespace) -> int:
         summary, xml, files = episode.run(recorder)
     finally:
         recorder.close()
-    (out / "scene.xml").write_text(xml)
-    for path, content in files.items():
-        (out / path).parent.mkdir(parents=True, exist_ok=True)
-        (out / path).write_bytes(content)
+    save_scene(out, xml, files)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     for robot in summary["robots"]:
         target = robot.get("target", {}).get("name", "-")

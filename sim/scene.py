@@ -157,6 +157,16 @@ class Scene:
         return link_files(xml, self.textures)
 
 
+def save_scene(directory: Path, xml: str, files: dict[str, bytes]) -> Path:
+    """Write :meth:`Scene.to_xml`'s MJCF as ``directory/scene.xml`` with the files it
+    reads beside it; returns the scene file's path."""
+    for path, content in files.items():
+        (directory / path).parent.mkdir(parents=True, exist_ok=True)
+        (directory / path).write_bytes(content)
+    scene = directory / "scene.xml"
+    scene.write_text(xml)
+    return scene
+
 def _world(spec: mujoco.MjSpec, s: Scenario) -> None:
     spec.modelname = f"taskcam_{s.name}"
     spec.option.timestep = 0.002

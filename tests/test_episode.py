@@ -16,7 +16,7 @@ from sim import Renderer, load_scenario
 from sim.collision import clearance
 from sim.episode import Episode, target_model
 from sim.scenario import SCENARIO_DIR
-from sim.scene import Target
+from sim.scene import Target, save_scene
 
 
 def _final(out):
@@ -213,11 +213,7 @@ def test_a_misplaced_workpiece_moves_in_the_world_only(tmp_path):
         expected = centre + rot @ (believed - centre) + [dx, dy, 0.0]
         assert np.allclose(world.site(site).xpos, expected, atol=1e-9)
     xml, files = e.scene.to_xml({"final": e.world_state()}, e.world_bodies())
-    (tmp_path / "scene.xml").write_text(xml)
-    for path, content in files.items():
-        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / path).write_bytes(content)
-    saved = mujoco.MjModel.from_xml_path(str(tmp_path / "scene.xml"))
+    saved = mujoco.MjModel.from_xml_path(str(save_scene(tmp_path, xml, files)))
     data = mujoco.MjData(saved)
     mujoco.mj_forward(saved, data)
     assert np.allclose(data.site("workpiece/slot").xpos, world.site("workpiece/slot").xpos,

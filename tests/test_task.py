@@ -19,7 +19,7 @@ from sim.optics import Lens
 from sim.record import Recorder
 from sim.render import camera_pinhole, camera_pose
 from sim.scenario import ObstacleConfig, Scenario
-from sim.scene import Robot, Scene, build_scene
+from sim.scene import Robot, Scene, build_scene, save_scene
 from sim.task import (
     BLUR_MARGIN_PX,
     MIN_POINTS,
@@ -168,11 +168,7 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     moved = np.subtract(second["pose"]["position"], first["pose"]["position"])
     assert np.linalg.norm(moved) > 0.01  # the re-placement really moved the camera
     assert r1["candidate_position"] == second["candidate_position"]
-    (tmp_path / "scene.xml").write_text(xml)
-    for path, content in files.items():
-        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / path).write_bytes(content)
-    saved = mujoco.MjModel.from_xml_path(str(tmp_path / "scene.xml"))
+    saved = mujoco.MjModel.from_xml_path(str(save_scene(tmp_path, xml, files)))
     data = mujoco.MjData(saved)
     # keyframes hold joints and mocap bodies; the mounts' tilt is as it ended, so "look"
     # shows a robot as it looked only if it did not move again
