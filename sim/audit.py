@@ -1,5 +1,5 @@
-"""Auditing a run directory (``summary.json`` and ``scene.xml``): does the summary tell
-the truth about the saved scene?
+"""Auditing a run directory (``summary.json``, ``scene.xml`` and ``look.xml``): does the
+summary tell the truth about the saved scenes?
 
 Checks, each a kind of :class:`Finding`:
 
@@ -7,8 +7,8 @@ Checks, each a kind of :class:`Finding`:
   and every placement of it is either placed or refused with a reason;
 - ``pose_mismatch``: each robot's reported ``pose`` is its camera's pose in
   ``scene.xml`` at keyframe ``final``, within what the XML round trip leaves (POSE_TOL_M,
-  POSE_TOL_DEG); ``look_mismatch``: the placement it looked from is where keyframe
-  ``look`` has its camera (LOOK_TOL_M, LOOK_TOL_DEG);
+  POSE_TOL_DEG); ``look_mismatch``: the placement it looked from is where ``look.xml``'s
+  keyframe ``look`` has its camera (LOOK_TOL_M, LOOK_TOL_DEG);
 - ``mirror_mismatch``: the robot's top-level fields are those of the placement it ended
   at, the last one placed;
 - ``sighting_outside_image``, ``sighting_off_target``, ``sighting_obstructed``: every
@@ -27,8 +27,8 @@ Checks, each a kind of :class:`Finding`:
   and ``timeout``: the run raised, killed its process or overran (found by the
   runner, sim/soak.py, not here).
 
-The checks are pure: they read the two files and nothing else (mujoco only to load
-the scene, put it at a keyframe and cast rays).
+The checks are pure: they read the three files and nothing else (mujoco only to load
+the scenes, put them at a keyframe and cast rays).
 """
 
 from __future__ import annotations
@@ -148,7 +148,7 @@ class SavedScene:
         self.data = mujoco.MjData(self.model)
         self.keyframe: str | None = None
 
-    def keys(self) -> list[str]:
+    def keyframes(self) -> list[str]:
         return [self.model.key(i).name for i in range(self.model.nkey)]
 
     def at(self, key: str) -> None:
@@ -236,12 +236,13 @@ def _inside(pixel: np.ndarray, width: int, height: int) -> bool:
 class _RobotAudit:
     """The checks of one robot of the summary."""
 
-    def __init__(self, audit: Audit, scene: SavedScene, robot: dict[str, Any],
-                 look_key: str | None, final_key: str | None, correction_on: bool | None
-                 ) -> None:
-        self.a, self.scene, self.r = audit, scene, robot
+    def __init__(self, audit: Audit, scenes: dict[str, SavedScene], robot: dict[str, Any],
+                 correction_on: bool | None) -> None:
+        """``scenes``: the saved scene that holds each keyframe (``final``, ``look``), by
+        its name; those missing are not checked."""
+        self.a, self.scenes, self.r = audit, scenes, robot
+        self.scene = next(iter(scenes.values()))  # any: the cameras and targets
         self.name = str(robot.get("name"))
-        self.look_key, self.final_key = look_key, final_key
         self.correction_on = correction_on
         placements = robot.get("placements")
         self.placements: list[dict[str, Any]] | None = (
@@ -249,6 +250,12 @@ class _RobotAudit:
 
     def find(self, kind: str, message: str) -> None:
         self.a.add(kind, self.name, message)
+
+    def at(self, key: str) -> SavedScene:
+        """The scene holding keyframe ``key``, put at it."""
+        scene = self.scenes[key]
+        scene.at(key)
+        return scene
 
     def run(self) -> None:
         camera = self.r.get("camera")
@@ -321,14 +328,13 @@ class _RobotAudit:
     # ------------------------------------------------------------ b. pose = scene.xml
 
     def final_pose(self) -> None:
-        if self.final_key is None:
+        if "final" not in self.scenes:
             return
         pose = self.r.get("pose")
         if not isinstance(pose, dict):
             self.find("schema", "no 'pose'")
             return
-        self.scene.at(self.final_key)
-        dp, da = pose_gap(pose, self.scene.camera_pose(self.camera))
+        dp, da = pose_gap(pose, self.at("final").camera_pose(self.camera))
         self.a.at_most("final_pose_m", dp)
         self.a.at_most("final_pose_deg", da)
         self.a.counts["poses_checked"] += 1
@@ -336,7 +342,7 @@ class _RobotAudit:
             self.find("pose_mismatch", f"reported pose is {dp * 1000:.3f} mm / {da:.4f} deg "
                       f"from camera '{self.camera}' at scene.xml's keyframe 'final'")
         looked = self.r.get("seen_from_placement")
-        if self.look_key is None or self.placements is None or not isinstance(looked, int):
+        if "look" not in self.scenes or self.placements is None or not isinstance(looked, int):
             return
         if not 0 <= looked < len(self.placements):
             self.find("schema", f"seen_from_placement {looked!r} is not one of the robot's "
@@ -344,14 +350,15 @@ class _RobotAudit:
             return
         if self.placements[looked].get("placed") is not True:
             return  # it looked from where it stood: nothing placed it (a claim is checked below)
-        self.scene.at(self.look_key)
-        dp, da = pose_gap(self.placements[looked]["pose"], self.scene.camera_pose(self.camera))
+        dp, da = pose_gap(self.placements[looked]["pose"],
+                          self.at("look").camera_pose(self.camera))
         self.a.at_most("look_pose_m", dp)
         self.a.at_most("look_pose_deg", da)
+        self.a.counts["looks_checked"] += 1
         if dp > LOOK_TOL_M or da > LOOK_TOL_DEG:
             self.find("look_mismatch", f"placements[{looked}].pose, where it looked from, is "
                       f"{dp * 1000:.3f} mm / {da:.4f} deg from camera '{self.camera}' at "
-                      f"keyframe 'look'")
+                      f"look.xml's keyframe 'look'")
 
     def mirrored(self) -> None:
         index = self.r.get("placement")
@@ -438,10 +445,10 @@ class _RobotAudit:
         return pose
 
     def sightings(self) -> None:
-        key = self.look_key or self.final_key
-        if key is None:
+        key = "look" if "look" in self.scenes else "final"
+        if key not in self.scenes:
             return
-        self.scene.at(key)
+        scene = self.at(key)
         rows = self.r.get("sightings") or []
         for i, s in enumerate(rows):
             what = f"sightings[{i}] of '{s.get('target')}'"
@@ -452,7 +459,8 @@ class _RobotAudit:
             if pose is None:
                 continue
             self.a.counts["sightings_checked"] += 1
-            self.sighting(what, s.get("target"), s.get("pixel"), pose, s.get("disparity_px"))
+            self.sighting(scene, what, s.get("target"), s.get("pixel"), pose,
+                          s.get("disparity_px"))
         if self.r.get("seen") is True:
             target = self.r.get("target")
             k = self.r.get("seen_from_placement")
@@ -465,12 +473,11 @@ class _RobotAudit:
             if pose is None or not isinstance(target, dict):
                 return
             self.a.counts["seen_checked"] += 1
-            self.sighting("the detection ('seen')", target.get("name"), self.r.get("pixel"),
-                          pose, None)
+            self.sighting(scene, "the detection ('seen')", target.get("name"),
+                          self.r.get("pixel"), pose, None)
 
-    def sighting(self, what: str, target: Any, pixel: Any, pose: dict[str, Any],
-                 disparity: Any) -> None:
-        scene = self.scene
+    def sighting(self, scene: SavedScene, what: str, target: Any, pixel: Any,
+                 pose: dict[str, Any], disparity: Any) -> None:
         try:
             g, truth, radius = scene.target(str(target))
         except KeyError:
@@ -526,15 +533,20 @@ def audit_run(run_dir: str | Path, scenario: Scenario | None = None) -> Audit:
     except (OSError, ValueError) as exc:
         out.add("schema", None, f"summary.json cannot be read: {exc}")
         return out
-    try:
-        scene = SavedScene(run_dir / "scene.xml")
-    except (OSError, ValueError) as exc:
-        out.add("schema", None, f"scene.xml cannot be loaded: {exc}")
+    scenes: dict[str, SavedScene] = {}
+    for file, key in (("scene.xml", "final"), ("look.xml", "look")):
+        try:
+            scene = SavedScene(run_dir / file)
+        except (OSError, ValueError) as exc:
+            out.add("schema", None, f"{file} cannot be loaded: {exc}")
+            continue
+        if key in scene.keyframes():
+            scenes[key] = scene
+        else:
+            out.add("schema", None, f"{file} has no keyframe '{key}' (it has {scene.keyframes()})")
+    if not scenes:
         return out
-    keys = scene.keys()
-    for key in ("look", "final"):
-        if key not in keys:
-            out.add("schema", None, f"scene.xml has no keyframe '{key}' (it has {keys})")
+    scene = next(iter(scenes.values()))
     robots = summary.get("robots")
     if not isinstance(robots, list):
         out.add("schema", None, "summary has no 'robots' list")
@@ -545,8 +557,7 @@ def audit_run(run_dir: str | Path, scenario: Scenario | None = None) -> Audit:
     correction_on = None if scenario is None else scenario.correction.enabled
     for i, robot in enumerate(robots):
         try:
-            _RobotAudit(out, scene, robot, "look" if "look" in keys else None,
-                        "final" if "final" in keys else None, correction_on).run()
+            _RobotAudit(out, scenes, robot, correction_on).run()
         except (AttributeError, KeyError, TypeError, ValueError, IndexError) as exc:
             name = robot.get("name") if isinstance(robot, dict) else None
             out.add("schema", name, f"robots[{i}]: malformed record: {exc!r}")

@@ -73,15 +73,16 @@ def run(args: argparse.Namespace) -> int:
     _log(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
          f"{scenario.robots.count} robot(s)")
     try:
-        summary, xml, files = episode.run(recorder)
+        summary, scenes = episode.run(recorder)
     finally:
         recorder.close()
-    save_scene(out, xml, files)
+    for name, (xml, files) in scenes.items():
+        save_scene(out, xml, files, name)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     for robot in summary["robots"]:
         target = robot.get("target", {}).get("name", "-")
         _log(f"{robot['name']}: placed={robot['placed']} target={target} seen={robot['seen']}")
-    _log(f"wrote {out}/summary.json, scene.xml"
+    _log(f"wrote {out}/summary.json, scene.xml, look.xml"
          f"{'' if args.no_record else ', run.rrd'} in {time.perf_counter() - start:.1f} s")
     return EXIT_OK
 

@@ -17,10 +17,14 @@ When the final frame cannot be located, the corrector recovers as a real system 
 it searches that frame again ``WIDER`` times as far from the prediction, and failing
 that the robot goes back along its path to where it last located a frame and forth
 again, with frames twice as dense (the episode drives it: :meth:`PoseCorrector.retrace`).
-An estimate that disagrees with the bundle adjustment's own pose by more than the
-correction's accuracy (``AGREE_M``, ``AGREE_DEG``) is not trusted either. A correction
-that fails says why, and the camera keeps its commanded pose with that pose's prior
-uncertainty (:func:`prior_pose_sd`) for whatever uses it.
+A move starts from where the robot believes its camera is: exactly known before its
+first move, afterwards the last correction's pose (the frames are tied to it, so its
+uncertainty is carried into this correction's). A correction is trusted (``corrected``)
+when it holds the correction's accuracy (``ACCURACY_M``, ``ACCURACY_DEG``): its estimate
+and the bundle adjustment's own pose agree to within it, and its standard deviation
+(the bundle's and the start's) puts the error inside it at 95 %. Otherwise it is
+``uncertain``; one that fails says why, and the camera keeps its commanded pose with
+that pose's prior uncertainty (:func:`prior_pose_sd`) for whatever uses it.
 
 Only images, the measured joints and the map are used: never the simulator's truth.
 The robots' own bodies are masked out of the images (they know their joint states).
@@ -62,12 +66,14 @@ from .scenario import CorrectionConfig, MotionConfig
 from .scene import Robot, Scene
 
 WIDER = 3.0  # the final frame's second search: this many times search_px and max_jump
-# The corrected pose is trusted when the estimator and the bundle adjustment agree to
-# within the accuracy the correction holds over the pose-correction benchmark's moves
-# (bench/pose_correction.py: at most 2.4 mm and 0.17 deg off the truth): two estimates
-# from the same fiducials further apart than that cannot both be that close.
-AGREE_M = 0.003
-AGREE_DEG = 0.2
+# The accuracy a trusted correction holds: the pose-correction benchmark's moves are all
+# within it (bench/pose_correction.py: at most 2.4 mm and 0.17 deg off the truth). Two
+# estimates from the same fiducials further apart than that cannot both be that close.
+ACCURACY_M = 0.003
+ACCURACY_DEG = 0.2
+# A pose standard deviation given as the root of a 3x3 covariance's trace (the root mean
+# square of the 3-D error) bounds 95 % of errors at this multiple: sqrt(chi2_3(0.95) / 3).
+RMS_TO_95 = math.sqrt(7.8147 / 3)
 ARM_REACH_M = 1.0  # base pivot to camera, for the prior of an uncorrected pose (m)
 
 
@@ -103,6 +109,7 @@ class Correction:
     others: dict[str, np.ndarray] = field(default_factory=dict)  # the other estimators' poses
     bundle_pose: np.ndarray | None = None  # the bundle adjustment's last pose (MuJoCo)
     pose_sd: tuple[float, float] | None = None  # bundle: position (m), rotation (deg)
+    start_sd: tuple[float, float] = (0.0, 0.0)  # of the pose the move started from
     frames: int = 0
     located: int = 0
     fiducials_tracked: int = 0
@@ -127,10 +134,18 @@ class Correction:
         disagreement when uncertain, ``prior`` (the commanded pose's) when failed."""
         if self.status == "failed":
             return prior
+        sd = self.sd
         if self.status == "uncertain" and self.pose is not None and self.bundle_pose is not None:
-            return (float(np.linalg.norm(self.pose[:3, 3] - self.bundle_pose[:3, 3])),
-                    rotation_deg(self.pose, self.bundle_pose))
-        return self.pose_sd or (0.0, 0.0)
+            return (max(sd[0], float(np.linalg.norm(self.pose[:3, 3] - self.bundle_pose[:3, 3]))),
+                    max(sd[1], rotation_deg(self.pose, self.bundle_pose)))
+        return sd
+
+    @property
+    def sd(self) -> tuple[float, float]:
+        """Standard deviation of the corrected pose, position (m) and rotation (deg): the
+        bundle adjustment's and the start pose's together."""
+        bundle = self.pose_sd or (0.0, 0.0)
+        return (math.hypot(bundle[0], self.start_sd[0]), math.hypot(bundle[1], self.start_sd[1]))
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {"status": self.status,
@@ -152,6 +167,8 @@ class Correction:
         if self.pose_sd is not None:
             out["bundle_sd"] = {"position_m": round(self.pose_sd[0], 6),
                                 "orientation_deg": round(self.pose_sd[1], 5)}
+        out["start_sd"] = {"position_m": round(self.start_sd[0], 6),
+                           "orientation_deg": round(self.start_sd[1], 5)}
         out["used"] = [{"position": f.position.round(5).tolist(),
                         "sd_m": round(float(np.sqrt(np.trace(f.covariance))), 6),
                         "pixel": f.pixel.round(2).tolist(),
@@ -184,6 +201,7 @@ class PoseCorrector:
         self._located_joints = np.zeros(0)  # ... and the measured joints then
         self._found: StereoFeatures | None = None  # the last frame's features
         self._retraced = False  # the move is being gone over again (frames twice as dense)
+        self._start_sd = (0.0, 0.0)  # of the pose the move started from
 
     # ------------------------------------------------------------ along the move
 
@@ -196,12 +214,17 @@ class PoseCorrector:
         mujoco.mj_camlight(self.scene.model, d)
         return opencv_pose(camera_pose(d, robot.camera))
 
-    def begin(self, robot: Robot, start_joints: np.ndarray) -> None:
-        """The first frame, at the pose before the move (known: no error yet)."""
+    def begin(self, robot: Robot, start_joints: np.ndarray,
+              start: tuple[np.ndarray, tuple[float, float]] | None = None) -> None:
+        """The first frame, at the pose before the move: ``start`` (the camera pose the
+        robot believes, MuJoCo convention, and its standard deviation in m and deg), or
+        where the joints put it when no move has made an error yet."""
         self._tracker = FiducialTracker(self.camera, self.settings)
-        T = self.nominal_pose(robot, start_joints)
+        measured = self.nominal_pose(robot, start_joints)  # frames are predicted from it
+        T = measured if start is None else opencv_pose(start[0])
+        self._start_sd = (0.0, 0.0) if start is None else start[1]
         frame = self._tracker.start(self._look(robot), invert(T))
-        self._last_measured = self._located_measured = T
+        self._last_measured = self._located_measured = measured
         self._last_located = frame.g01
         self._joints = np.array(start_joints, copy=True)
         self._located_joints = self._joints.copy()
@@ -281,7 +304,8 @@ class PoseCorrector:
         way back and forth, and ``finish`` is called again."""
         tracker = self._tracker
         assert tracker is not None, "begin() first"
-        out = Correction(tried=["wider search", "retrace"] if self._retraced else [])
+        out = Correction(tried=["wider search", "retrace"] if self._retraced else [],
+                         start_sd=self._start_sd)
         located = self._frame(robot, self.nominal_pose(robot, self._joints))
         if not located:
             if not self._retraced:
@@ -323,11 +347,7 @@ class PoseCorrector:
             out.reason = str(exc)
             return out
         out.pose = mujoco_pose(out.estimate.pose)
-        apart_m = float(np.linalg.norm(out.pose[:3, 3] - out.bundle_pose[:3, 3]))
-        apart_deg = rotation_deg(out.pose, out.bundle_pose)
-        if apart_m > AGREE_M or apart_deg > AGREE_DEG:
-            out.reason = (f"the {out.estimate.method} estimate and the bundle adjustment "
-                          f"disagree by {apart_m * 1e3:.1f} mm, {apart_deg:.2f} deg")
+        out.reason = self._distrust(out)
         for method in METHODS:  # the same fiducials by every estimator, for comparison
             if method != out.estimate.method:
                 try:
@@ -340,6 +360,25 @@ class PoseCorrector:
                                  tracker.fiducials.tracks[ids[k]])
                     for f, z, c, k in zip(fids, zs, chosen, index, strict=True)]
         return out
+
+    @staticmethod
+    def _distrust(c: Correction) -> str:
+        """Why the estimate ``c`` cannot be trusted to the correction's accuracy; empty
+        if it can."""
+        assert c.pose is not None and c.bundle_pose is not None and c.estimate is not None
+        why = []
+        apart_m = float(np.linalg.norm(c.pose[:3, 3] - c.bundle_pose[:3, 3]))
+        apart_deg = rotation_deg(c.pose, c.bundle_pose)
+        if apart_m > ACCURACY_M or apart_deg > ACCURACY_DEG:
+            why.append(f"the {c.estimate.method} estimate and the bundle adjustment "
+                       f"disagree by {apart_m * 1e3:.1f} mm, {apart_deg:.2f} deg")
+        sd_m, sd_deg = c.sd
+        if RMS_TO_95 * sd_m > ACCURACY_M or RMS_TO_95 * sd_deg > ACCURACY_DEG:
+            start = " (with the start pose's)" if any(c.start_sd) else ""
+            why.append(f"its standard deviation{start}, {sd_m * 1e3:.1f} mm and "
+                       f"{sd_deg:.2f} deg, allows errors beyond {ACCURACY_M * 1e3:g} mm / "
+                       f"{ACCURACY_DEG:g} deg")
+        return "; ".join(why)
 
     def _rated(self, frames: list[Frame], poses: list[np.ndarray], pose_cov: list[np.ndarray],
                kept: np.ndarray) -> tuple[list[Candidate], list[FiducialFilter], list[int]]:

@@ -266,6 +266,10 @@ class Episode:
         self.step = 0
         self.prior_sd = prior_pose_sd(scenario.motion)  # of a camera pose not corrected
         self.look_state = self.world_state()  # the world when the targets were looked for
+        self.look_bodies = self.world_bodies()  # ... and its bodies that keyframes cannot hold
+        # where each robot that has moved believes its camera rests (MuJoCo convention) and
+        # that belief's standard deviation (m, deg): the next correction starts from it
+        self.at_rest: dict[str, tuple[np.ndarray, tuple[float, float]]] = {}
         cam = scenario.camera
         self.camera_model = CameraModel(math.radians(cam.fovy_deg), cam.height, cam.near_m,
                                         cam.far_m)
@@ -385,7 +389,7 @@ class Episode:
         frames: Callable[[float, np.ndarray], None] | None = None
         if corrector is not None:
             with self.timer("correction"):
-                corrector.begin(robot, path[0])
+                corrector.begin(robot, path[0], self.at_rest.get(robot.name))
             frames = corrector.on_sample(robot)
 
         framing = 0.0  # wall time (s) spent on frames during the move
@@ -411,9 +415,12 @@ class Episode:
         if correction.retrace_from is not None:  # back to where a frame was located, and forth
             again = corrector.retrace(path, correction.retrace_from)
             with self.timer("motion"):
-                self.mover.follow(robot, again, error, on_sample, error_held=True)
+                self.mover.follow(robot, again, error, on_sample)
             with self.timer("correction"):
                 correction = corrector.finish(robot)
+        believed = (correction.pose if correction.pose is not None
+                    else camera_pose(self.belief, robot.camera))
+        self.at_rest[robot.name] = (believed, correction.believed_sd(self.prior_sd))
         self.timer.totals["motion"] -= framing
         self.timer.totals["correction"] += framing
         self.recorder.fiducials(robot.name, correction)
@@ -426,7 +433,7 @@ class Episode:
         pinhole = self.pinhole
         rows: dict[str, dict[str, Any]] = {}
         self.sightings = []
-        self.look_state = self.world_state()
+        self.look_state, self.look_bodies = self.world_state(), self.world_bodies()
         self._tick()
         for p in placements:
             robot = p.robot
@@ -492,9 +499,11 @@ class Episode:
         return d.qpos.copy(), d.mocap_pos.copy(), d.mocap_quat.copy()
 
     def run(self, recorder: Recorder | None = None
-            ) -> tuple[dict[str, Any], str, dict[str, bytes]]:
-        """All stages; returns ``summary.json``'s content, the scene's MJCF and the files
-        it reads (by path relative to it)."""
+            ) -> tuple[dict[str, Any], dict[str, tuple[str, dict[str, bytes]]]]:
+        """All stages; returns ``summary.json``'s content and the scenes to save, by file
+        name (their MJCF and the files it reads): ``scene.xml``, the world as it ended
+        (keyframes ``start`` and ``final``), and ``look.xml``, the world when the targets
+        were looked for (keyframe ``look``; the arms' mounts tilted as they were then)."""
         t0 = time.perf_counter()
         if recorder is not None:
             self.recorder = recorder
@@ -505,15 +514,16 @@ class Episode:
             mapping = self.map(renderer)
             self.hold()
             robots, frame, task = self.place_and_do(renderer)
-        xml, files = self.scene.to_xml({"look": self.look_state, "final": self.world_state()},
-                                       self.world_bodies())
+        scenes = {"scene.xml": self.scene.to_xml({"final": self.world_state()},
+                                                 self.world_bodies()),
+                  "look.xml": self.scene.to_xml({"look": self.look_state}, self.look_bodies)}
         self.timer.totals["total"] = time.perf_counter() - t0
         summary = {
             "version": VERSION, "scenario": self.s.name, "seed": self.s.seed,
             "robots": robots, "mapping": mapping, "target_frame": frame, "task": task,
             "timings_s": {k: round(v, 4) for k, v in self.timer.totals.items()},
         }
-        return summary, xml, files
+        return summary, scenes
 
     def place_and_do(self, renderer: Renderer
                      ) -> tuple[list[dict[str, Any]], dict[str, Any], dict[str, Any] | None]:
@@ -666,8 +676,8 @@ class Episode:
         d.mocap_pos[:], d.mocap_quat[:] = snap.mocap_pos, snap.mocap_quat
         d.qvel[:] = 0.0
         d.act[:] = 0.0
-        for robot in self.scene.robots:
-            self.mover.tilt(robot, 0.0, 0.0, forward=False)
+        self.mover.reset()
+        self.at_rest = {}
         mujoco.mj_forward(self.model, d)
         self.belief.qpos[:] = snap.qpos
         mujoco.mj_forward(self.nominal, self.belief)

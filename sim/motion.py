@@ -11,6 +11,9 @@ The planner's world is the nominal model and the commanded joints; the simulated
 - suspension: the arm's mount tilts (roll and pitch about the base's floor point) by an
   angle drawn for every move, written into the world model only.
 
+An error stays where the move that made it left it: the next move turns it into its own
+along the way (a robot does not lose its offsets by starting to move).
+
 The planner never reads the world: it sees the commanded joints. The episode compares
 the commanded camera pose with the one the world reached.
 """
@@ -41,6 +44,10 @@ class MoveError:
 
     setpoints: np.ndarray
     tilt: tuple[float, float]
+
+    @staticmethod
+    def none() -> MoveError:
+        return MoveError(np.zeros(9), (0.0, 0.0))
 
 
 class ErrorModel:
@@ -113,6 +120,7 @@ class Mover:
                                     world.body_quat[self.mounts[r.name]].copy())
                            for r in robots}
         self.proximity = {r.name: Proximity(world, r, robots) for r in robots}
+        self.made = {r.name: MoveError.none() for r in robots}  # the error each robot has now
         # Seconds of lead per joint: a position servo with gain kp and damping d (its kv
         # plus the joint's) trails a ramp by d / kp; commanding that much ahead cancels it.
         self.lead = {r.name: np.array([
@@ -137,21 +145,28 @@ class Mover:
         if forward:
             mujoco.mj_forward(self.world, self.data)
 
+    def reset(self) -> None:
+        """Every robot as commanded: no error made, the mounts untilted (the world's
+        joints are the caller's to set)."""
+        for robot in self.robots:
+            self.made[robot.name] = MoveError.none()
+            self.tilt(robot, 0.0, 0.0, forward=False)
+
     def follow(self, robot: Robot, path: np.ndarray, error: MoveError,
                on_sample: Callable[[float, np.ndarray], None] | None = None,
-               sample_every_s: float = 0.05, error_held: bool = False) -> MotionResult:
+               sample_every_s: float = 0.05) -> MotionResult:
         """Drive ``robot``'s set points along ``path`` (k, 9), then hold the goal for the
         settle time, stepping the physics throughout.
 
         The path is timed at ``speed_scale`` of the joint speed limits and run along a
         minimum-jerk profile (at rest at both ends; 15/8 as long, the same peak speed),
-        with velocity feed-forward. The move's error builds up along the same profile
-        (none at the start, where the pose was known; all of it at the end).
-        ``on_sample(t, measured)`` is called every ``sample_every_s`` of simulated time
-        with the joints as the robot's encoders and odometry read them: the true joints
-        (servo lag included) less the move's errors, which they cannot see.
-        ``error_held``: the error is already all there from the start (a move that
-        continues the last one, such as going back along it and forth again)."""
+        with velocity feed-forward. The robot's error turns from the one it has (the last
+        move's) into ``error`` along the same profile: all of the old at the start, all
+        of the new at the end (a move that continues the last one, such as going back
+        along it and forth again, keeps it). ``on_sample(t, measured)`` is called every
+        ``sample_every_s`` of simulated time with the joints as the robot's encoders and
+        odometry read them: the true joints (servo lag included) less the errors, which
+        they cannot see."""
         m, d, cfg = self.world, self.data, self.cfg
         act = self.actuators[robot.name]
         knots = timed_path(path, cfg.speed_scale)
@@ -169,22 +184,24 @@ class Mover:
         tau = np.minimum((np.arange(n) + 1) * dt / max(duration, 1e-9), 1.0)
         progress = tau ** 3 * (10 - 15 * tau + 6 * tau ** 2)  # minimum jerk, 0 to 1
         speed = 30 * tau ** 2 * (1 - tau) ** 2 / max(duration, 1e-9)  # d progress / dt
-        built = np.ones(n) if error_held else progress  # share of the move's error made
+        old = self.made[robot.name]
+        made = old.setpoints + progress[:, None] * (error.setpoints - old.setpoints)
+        tilts = np.array(old.tilt) + progress[:, None] * (np.array(error.tilt) - old.tilt)
         nominal = progress * knots[-1]
         commanded = np.column_stack([np.interp(nominal, knots, path[:, j])
                                      for j in range(path.shape[1])])
-        setpoints = commanded + built[:, None] * error.setpoints
+        setpoints = commanded + made
         if len(path) > 1:  # velocity feed-forward: the servo's lag, led
             rates = np.diff(path, axis=0) / np.maximum(np.diff(knots), 1e-12)[:, None]
             segment = np.clip(np.searchsorted(knots, nominal, side="left") - 1, 0,
                               len(rates) - 1)
             velocity = rates[segment] * (speed * knots[-1])[:, None]
             setpoints += velocity * self.lead[robot.name]
-        tilt = np.array(error.tilt)
         own = np.array(sorted(own_geoms))
+        self.made[robot.name] = error
         for k in range(n):
             if k % TILT_EVERY == 0 or k == n - 1:
-                roll, pitch = built[k] * tilt
+                roll, pitch = tilts[k]
                 self.tilt(robot, float(roll), float(pitch), forward=False)
             d.ctrl[act] = setpoints[k]
             mujoco.mj_step(m, d)
@@ -201,6 +218,5 @@ class Mover:
             if steps % sample == 0 or k == n - 1:
                 samples.append((float(d.time), d.qpos[robot.qpos_adr].copy()))
                 if on_sample is not None:
-                    on_sample(float(d.time),
-                              d.qpos[robot.qpos_adr] - built[k] * error.setpoints)
+                    on_sample(float(d.time), d.qpos[robot.qpos_adr] - made[k])
         return MotionResult(float(d.time - t0), steps, closest, contacts, samples)

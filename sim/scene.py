@@ -133,13 +133,17 @@ class Scene:
                bodies: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
                ) -> tuple[str, dict[str, bytes]]:
         """MJCF of the scene with keyframe ``start`` and one keyframe per named world state
-        (qpos, mocap positions, mocap quaternions), e.g. ``final``; and the files it reads
-        (painted textures, by path relative to it). ``bodies`` overrides named bodies'
-        (pos, quat) relative to their parents (the world as it ended, e.g. the arms'
-        tilted mounts), in every keyframe: a keyframe holds only joints and mocap bodies."""
+        (qpos, mocap positions, mocap quaternions), e.g. ``final``, and no other; and the
+        files it reads (painted textures, by path relative to it). ``bodies`` overrides
+        named bodies' (pos, quat) relative to their parents (the world at those states,
+        e.g. the arms' tilted mounts), in every keyframe: a keyframe holds only joints and
+        mocap bodies, so states with bodies apart need a scene each."""
         for name, (pos, quat) in (bodies or {}).items():
             body = self.spec.body(name)
             body.pos, body.quat = list(pos), list(quat)
+        for key in list(self.spec.keys):
+            if key.name != "start" and key.name not in states:
+                self.spec.delete(key)
         mocap = self.model.body_mocapid >= 0
         start = (self.start_qpos, self.model.body_pos[mocap].ravel(),
                  self.model.body_quat[mocap].ravel())
@@ -157,13 +161,14 @@ class Scene:
         return link_files(xml, self.textures)
 
 
-def save_scene(directory: Path, xml: str, files: dict[str, bytes]) -> Path:
-    """Write :meth:`Scene.to_xml`'s MJCF as ``directory/scene.xml`` with the files it
-    reads beside it; returns the scene file's path."""
+def save_scene(directory: Path, xml: str, files: dict[str, bytes],
+               name: str = "scene.xml") -> Path:
+    """Write :meth:`Scene.to_xml`'s MJCF as ``directory/name`` with the files it reads
+    beside it; returns the scene file's path."""
     for path, content in files.items():
         (directory / path).parent.mkdir(parents=True, exist_ok=True)
         (directory / path).write_bytes(content)
-    scene = directory / "scene.xml"
+    scene = directory / name
     scene.write_text(xml)
     return scene
 

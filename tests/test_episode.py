@@ -29,7 +29,7 @@ def _final(out):
 
 def test_writes_the_three_files(default_run):
     out, summary = default_run
-    for name in ("summary.json", "scene.xml", "run.rrd"):
+    for name in ("summary.json", "scene.xml", "look.xml", "run.rrd"):
         assert (out / name).stat().st_size > 0
     assert summary["version"] == "0.1.0" and summary["scenario"] == "default"
     assert len(summary["robots"]) == 2
@@ -149,7 +149,7 @@ def _without_times(summary):
 
 def test_same_seed_same_summary(default_run):
     _, summary = default_run
-    again, _, _ = Episode(load_scenario()).run()
+    again, _ = Episode(load_scenario()).run()
     assert _without_times(json.loads(json.dumps(again))) == _without_times(summary)
 
 

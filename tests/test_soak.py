@@ -44,39 +44,12 @@ def _findings(records: list[dict[str, Any]]) -> list[str]:
             for f in r["findings"]]
 
 
-# Still open (issue 17): a correction may report "corrected" a few millimetres outside
-# 3 mm / 0.2 deg (its estimate and bundle adjustment agree, both off); counted apart.
-OPEN_KINDS = {"correction_out_of_tolerance"}
-
-
 def test_soak_scenes_tell_the_truth(soak: list[dict[str, Any]]) -> None:
-    findings = _findings([{**r, "findings": [f for f in r["findings"]
-                                             if f["kind"] not in OPEN_KINDS]}
-                          for r in soak if r["index"] is not None])
+    findings = _findings([r for r in soak if r["index"] is not None])
     assert not findings, "\n".join(findings)
 
 
-@pytest.mark.xfail(strict=True, reason="open: corrections reported corrected out of tolerance")
-def test_soak_corrections_reported_corrected_are_within_tolerance(
-        soak: list[dict[str, Any]]) -> None:
-    findings = _findings([{**r, "findings": [f for f in r["findings"]
-                                             if f["kind"] in OPEN_KINDS]}
-                          for r in soak if r["index"] is not None])
-    assert not findings, "\n".join(findings)
-
-
-# Still open (issue 17): scene.xml's keyframes hold joints and mocap bodies, not the arm
-# mounts' tilt, so keyframe "look" shows a robot that moved again with its last tilt; and
-# a correction can report "corrected" a few millimetres outside 3 mm / 0.2 deg. Strict:
-# these fail the suite once fixed, so the mark is removed with the fix.
-OPEN = {"look_keyframe_tilt.toml": "keyframe look holds the last mount tilt",
-        "correction_out_of_tolerance.toml": "keyframe look holds the last mount tilt; "
-                                            "a correction out of tolerance reported corrected"}
-
-
-@pytest.mark.parametrize("name", [
-    pytest.param(p.name, marks=pytest.mark.xfail(strict=True, reason=OPEN[p.name]))
-    if p.name in OPEN else p.name for p in FOUND])
+@pytest.mark.parametrize("name", [p.name for p in FOUND])
 def test_scenes_the_soak_found_failing_tell_the_truth(soak: list[dict[str, Any]],
                                                       name: str) -> None:
     (record,) = [r for r in soak if r.get("file") == name]
@@ -198,8 +171,9 @@ def edited(run_dir: Path, tmp_path: Path, summary_edit: Any = None, xml_edit: An
         summary_edit(summary)
         (copy_dir / "summary.json").write_text(json.dumps(summary))
     if xml_edit is not None:
-        xml = (copy_dir / "scene.xml").read_text()
-        (copy_dir / "scene.xml").write_text(xml_edit(xml, summary))
+        for name in ("scene.xml", "look.xml"):
+            xml = (copy_dir / name).read_text()
+            (copy_dir / name).write_text(xml_edit(xml, summary))
 
     def keyed(a: Audit) -> set[tuple[str, str | None, str]]:
         return {(f.kind, f.robot, f.message) for f in a.findings}

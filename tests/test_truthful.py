@@ -53,7 +53,7 @@ def test_a_target_nobody_located_is_not_a_success():
     nominal place and calling it a success."""
     s = parse_scenario(_enclosed(search={"method": "biased_random", "check_sight": False},
                                  task={"enabled": True, "max_steps": 2}))
-    summary, _, _ = Episode(s).run()
+    summary, _ = Episode(s).run()
     assert not any(r["seen"] for r in summary["robots"])
     assert summary["target_frame"]["frame"] is None
     task = summary["task"]
@@ -75,7 +75,7 @@ def test_a_correction_that_cannot_locate_its_final_frame_says_so():
         mapping=dataclasses.replace(base.mapping, max_views=2),
         correction=dataclasses.replace(base.correction, search_px=0.05),
         task=dataclasses.replace(base.task, enabled=False))
-    summary, _, _ = Episode(s).run()
+    summary, _ = Episode(s).run()
     for robot in summary["robots"]:
         assert robot["placed"], robot.get("refused")
         c = robot["correction"]
