@@ -60,7 +60,7 @@ from sim import Renderer, Scene, Target, build_scene, camera_pinhole, camera_pos
 from sim.episode import find_target
 from sim.optics import Lens, defocus
 from sim.scenario import Scenario
-from sim.target_frame import POSE_SLACK_PX, projected_disk, sight
+from sim.target_frame import projected_disk, search_slack_px, sight
 
 CONFIGS = (  # label, width, height, MSAA samples: as table1, the default, regression
     ("640x480", 640, 480, 0), ("640x480 MSAA 4", 640, 480, 4), ("320x240 MSAA 4", 320, 240, 4))
@@ -162,7 +162,8 @@ def in_image(image: np.ndarray, T_mjcam: np.ndarray, target: Target, pinhole: Pi
         return None
     (u, v), shape = disk
     radius = math.sqrt(abs(float(np.linalg.det(shape))))
-    found = locate_hole(image, (float(u), float(v)), radius, 3 * radius + POSE_SLACK_PX, shape)
+    slack = search_slack_px(1.0, pinhole.fx, 0.0, 0.0)  # the pose is exact
+    found = locate_hole(image, (float(u), float(v)), radius, 3 * radius + slack, shape)
     reach = disk_template(radius, shape=shape).shape[0] // 2 + max(2, int(radius // 2))
     fits = reach <= min(u, v, pinhole.width - 1 - u, pinhole.height - 1 - v)
     ellipse = ellipse_centre(target, opencv_pose(T_mjcam), pinhole)
@@ -209,7 +210,8 @@ def observe(scene: Scene, data: mujoco.MjData, renderer: Renderer, lens: Lens,
             continue
         found_right = in_image(right, T_right, target, pinhole)
         unblurred = in_image(sharp_left, T, target, pinhole) if sharp else None
-        seen = sight(robot.name, left, right, target, T, pinhole, baseline)
+        seen = sight(robot.name, left, right, target, T, pinhole, baseline,
+                     position_sd_m=0.0, rotation_sd_deg=0.0)
         single = find_target(left, seg, target, model.geom(target.geom).id, T, pinhole)
         both = (found_right is not None and found_left["outcome"] == "found"
                 and found_right["outcome"] == "found"

@@ -2,7 +2,15 @@
 camera's pose from them (eq. 5-6, Kabsch, SQPnP), recursive pose statistics (eq. 7),
 fiducial EKFs (eq. 10-12) and bundle adjustment of stereo keyframes. Free of MuJoCo."""
 
-from .targets import HoleDetection, detect_holes, disk_template, locate_hole, log_response, to_gray
+from .targets import (
+    HoleDetection,
+    detect_holes,
+    disk_template,
+    holes_near,
+    locate_hole,
+    log_response,
+    to_gray,
+)
 
-__all__ = ["HoleDetection", "detect_holes", "disk_template", "locate_hole", "log_response",
-           "to_gray"]
+__all__ = ["HoleDetection", "detect_holes", "disk_template", "holes_near", "locate_hole",
+           "log_response", "to_gray"]

@@ -110,10 +110,19 @@ def _match(gray: np.ndarray, template: np.ndarray, half: int, x: int, y: int,
     return HoleDetection(x0 + half + bx + dx, y0 + half + by + dy, radius_px, float(best))
 
 
+def holes_near(image: np.ndarray, expected_uv: tuple[float, float], radius_px: float,
+               search_px: float, shape: np.ndarray | None = None) -> list[HoleDetection]:
+    """The detected holes within ``search_px`` pixels of where one is expected, nearest
+    first."""
+    def gap(d: HoleDetection) -> float:
+        return math.hypot(d.u - expected_uv[0], d.v - expected_uv[1])
+
+    return sorted((d for d in detect_holes(image, radius_px, shape=shape)
+                   if gap(d) <= search_px), key=gap)
+
+
 def locate_hole(image: np.ndarray, expected_uv: tuple[float, float], radius_px: float,
                 search_px: float, shape: np.ndarray | None = None) -> HoleDetection | None:
     """The detected hole nearest to where it is expected, within ``search_px`` pixels."""
-    near = [d for d in detect_holes(image, radius_px, shape=shape)
-            if math.hypot(d.u - expected_uv[0], d.v - expected_uv[1]) <= search_px]
-    return min(near, key=lambda d: math.hypot(d.u - expected_uv[0], d.v - expected_uv[1]),
-               default=None)
+    near = holes_near(image, expected_uv, radius_px, search_px, shape)
+    return near[0] if near else None

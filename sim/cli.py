@@ -111,6 +111,13 @@ def sweep(args: argparse.Namespace) -> int:
             raise _invalid_db(exc, "--db") from None
         if refused is not None:
             raise _invalid_db(refused, "--db")
+    if args.scheduler:
+        from .runner import scheduler_problem
+
+        if (problem := scheduler_problem(args.scheduler)) is not None:
+            raise ScenarioError("--scheduler", "scheduler", args.scheduler,
+                                "the address of a running Dask scheduler whose workers "
+                                "started pinned (tcp://HOST:PORT)", problem=problem)
     args.db.parent.mkdir(parents=True, exist_ok=True)
     where = f"scheduler {args.scheduler}" if args.scheduler else f"{args.workers} worker(s)"
     _log(f"sweep '{spec.config.name}' ({args.spec}): {spec.config.trials} scenes x "

@@ -54,6 +54,7 @@ from placement import (
     biased_random,
     detectable,
     information_gain,
+    line_of_sight,
     search,
     target_points,
 )
@@ -75,6 +76,9 @@ from .task import Camera, InsertionTask, TaskResult
 
 VERSION = "0.1.0"
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
+# A line of sight to a target is checked in the map up to this many voxels short of it:
+# the plate around the hole fills the last voxels (about 3 along a line 70 deg oblique).
+SIGHT_STOP_VOXELS = 3
 
 
 class Timer:
@@ -461,16 +465,15 @@ class Episode:
             return rows
         believed = believed_pose(p)
         position_sd, rotation_sd = self.believed_sd(p)
-        predicted = {t.name: disk[0] for t in self.targets
-                     if (disk := projected_disk(t, opencv_pose(believed), self.pinhole))}
+        hidden = self._hidden_in_map(believed[:3, 3])
         for t in self.targets:
+            if hidden[t.name]:
+                continue  # whatever is seen there, it is not the target
             found = sight(robot.name, left, right, t, believed, self.pinhole,
-                          self.s.camera.baseline_m)
-            if found is not None and t.name in predicted:
-                gap = {n: float(np.linalg.norm(np.subtract(found.pixel, c)))
-                       for n, c in predicted.items()}
-                if min(gap, key=gap.__getitem__) != t.name:
-                    continue  # nearer where another target should be: not claimed as this one
+                          self.s.camera.baseline_m,
+                          position_sd_m=math.hypot(position_sd, self.target_sd(t)),
+                          rotation_sd_deg=rotation_sd,
+                          others=tuple(o for o in self.targets if o is not t))
             if found is not None:
                 reach = float(np.linalg.norm(found.position - believed[:3, 3]))
                 pose_sd = math.hypot(position_sd, reach * math.radians(rotation_sd))
@@ -480,6 +483,29 @@ class Episode:
                 self.sightings.append(found)
                 rows.append(found.summary(t.position))
         return rows
+
+    def _hidden_in_map(self, camera: np.ndarray) -> dict[str, bool]:
+        """Per target, whether the map has seen something occupied (a voxel at the
+        probability one hit gives, or above) on the line from ``camera`` (world, m) to it.
+        A camera outside the map's bounds has no evidence."""
+        g = self.grid
+        if not g.inside(g.index(camera[None]))[0]:
+            return {t.name: False for t in self.targets}
+        points = np.array([t.position for t in self.targets])
+        seen = line_of_sight(g, camera, points, stop_short=SIGHT_STOP_VOXELS * g.resolution,
+                             blocked=g.probability() >= g.model.hit)[0]
+        inside = g.inside(g.index(points))
+        return {t.name: bool(i and not v) for t, i, v in zip(self.targets, inside, seen,
+                                                           strict=True)}
+
+    def target_sd(self, t: Target) -> float:
+        """Standard deviation (m, root of the covariance's trace) of a target's true place
+        about its nominal one: the work-piece's misplacement, x and y, and its yaw error
+        swinging the target about the work-piece's origin."""
+        w = self.s.workpiece
+        lever = float(np.linalg.norm(t.position[:2] - np.asarray(w.position, float)))
+        return math.sqrt(2 * w.position_error_m ** 2
+                         + (lever * math.radians(w.yaw_error_deg)) ** 2)
 
     def believed_sd(self, p: Placement) -> tuple[float, float]:
         """Standard deviation of the robot's believed camera pose: position (m), rotation

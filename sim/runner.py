@@ -123,17 +123,39 @@ def _local(specs: list[TrialSpec], workers: int) -> Iterator[dict[str, Any]]:
                 future.cancel()
 
 
+CONNECT_TIMEOUT = "10s"  # to reach a Dask scheduler before calling it unreachable
+
+
+def _unpinned(client: Any) -> str | None:
+    """Why the client's Dask workers cannot run trials (not started pinned); None if
+    they can."""
+    unpinned = sorted(w for w, ok in client.run(pinned_here).items() if not ok)
+    if not unpinned:
+        return None
+    return (f"worker(s) {', '.join(unpinned)} did not start with taskcam's pinned "
+            f"environment ({', '.join(PINS)}), so their results would depend on their "
+            "processor: start them with `python -m sim.pinned dask worker ADDRESS` "
+            "(docs/reproducibility.md)")
+
+
+def scheduler_problem(address: str) -> str | None:
+    """Why a sweep cannot run on the Dask scheduler at ``address`` (unreachable, or
+    workers not pinned); None if it can."""
+    from distributed import Client
+
+    try:
+        with Client(address, timeout=CONNECT_TIMEOUT) as client:
+            return _unpinned(client)
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        return f"cannot be reached ({exc})"
+
+
 def _dask(specs: list[TrialSpec], address: str) -> Iterator[dict[str, Any]]:
     from distributed import Client, as_completed
 
-    with Client(address) as client:
-        unpinned = sorted(w for w, ok in client.run(pinned_here).items() if not ok)
-        if unpinned:
-            raise RuntimeError(
-                f"Dask worker(s) {', '.join(unpinned)} did not start with taskcam's pinned "
-                f"environment ({', '.join(PINS)}); their results would depend on their "
-                "processor. Start them with `python -m sim.pinned dask worker ADDRESS`, "
-                "or from a process that imported sim (docs/reproducibility.md)")
+    with Client(address, timeout=CONNECT_TIMEOUT) as client:
+        if (problem := _unpinned(client)) is not None:
+            raise RuntimeError(f"Dask {problem}")
         futures = client.map(run_trial, specs, pure=False)
         try:
             for future in as_completed(futures):

@@ -18,13 +18,26 @@ from typing import Any
 
 import numpy as np
 
-from calibration import locate_hole
+from calibration import holes_near
 from calibration.ekf import StereoCamera
 from mapping import Pinhole, opencv_pose, world_to_camera
 
 from .scene import Target
 
-POSE_SLACK_PX = 40.0  # how far a believed pose may misplace a target in the image
+# A target is looked for where the believed pose puts it, as far around as that
+# prediction is uncertain: SIGMAS standard deviations of its pixel, plus the detector's
+# own error where it is reliable (docs/detector_limits.md: within 1 px).
+SIGMAS = 3.0
+DETECTOR_PX = 1.0
+
+
+def search_slack_px(depth_m: float, fx: float, position_sd_m: float,
+                    rotation_sd_deg: float) -> float:
+    """How far (px) a target ``depth_m`` in front of the camera may lie from its predicted
+    pixel, given the standard deviations of the camera's and the target's positions
+    together (m, root of the covariance's trace) and of the camera's rotation (deg)."""
+    pixel_sd = fx * math.hypot(position_sd_m / depth_m, math.radians(rotation_sd_deg))
+    return SIGMAS * pixel_sd + DETECTOR_PX
 
 
 @dataclass(frozen=True)
@@ -72,25 +85,41 @@ def projected_disk(target: Target, T_world_cam: np.ndarray, pinhole: Pinhole
 
 
 def sight(robot: str, left: np.ndarray, right: np.ndarray, target: Target,
-          T_believed_mjcam: np.ndarray, pinhole: Pinhole, baseline_m: float) -> Sighting | None:
-    """The target found in both images near where the believed pose puts it; None if it
-    is behind the camera, out of the image or not found in both."""
+          T_believed_mjcam: np.ndarray, pinhole: Pinhole, baseline_m: float, *,
+          position_sd_m: float, rotation_sd_deg: float,
+          others: tuple[Target, ...] = ()) -> Sighting | None:
+    """The target found in both images where the believed pose puts it: within
+    :func:`search_slack_px` of the prediction, given the standard deviations of the
+    camera's and the target's positions together (m) and of the camera's rotation (deg).
+    A hole is this target's only if it lies nearer this target's predicted pixel than
+    any of ``others``' (the other targets), and it is claimed only if it is the one such
+    hole in the left image's window and the one on its row in the right image's (two
+    would be a guess). None if the target is behind the camera, out of the image, not
+    found in both images or not found unambiguously."""
     T = opencv_pose(T_believed_mjcam)
     disk = projected_disk(target, T, pinhole)
     if disk is None or not pinhole.contains(disk[0][None], margin=5.0)[0]:
         return None
     (u, v), shape = disk
     radius_px = math.sqrt(abs(float(np.linalg.det(shape))))
-    search = 3 * radius_px + POSE_SLACK_PX
-    found = locate_hole(left, (float(u), float(v)), radius_px, search, shape)
-    if found is None:
-        return None
     depth = float(world_to_camera(T, target.position[None])[0, 2])
-    shift = pinhole.fx * baseline_m / depth  # the expected disparity
-    other = locate_hole(right, (found.u - shift, found.v), radius_px, search, shape)
-    if other is None or abs(other.v - found.v) > 1.5 or found.u - other.u <= 0:
+    slack = search_slack_px(depth, pinhole.fx, position_sd_m, rotation_sd_deg)
+    rivals = [p[0] for t in others if (p := projected_disk(t, T, pinhole)) is not None]
+    mine = [h for h in holes_near(left, (float(u), float(v)), radius_px, 3 * radius_px + slack,
+                                  shape)
+            if all(math.hypot(h.u - u, h.v - v) <= math.hypot(h.u - a, h.v - b)
+                   for a, b in rivals)]
+    if len(mine) != 1:
         return None
-    d = found.u - other.u
+    found = mine[0]
+    shift = pinhole.fx * baseline_m / depth  # the expected disparity
+    # given the left detection, only the depth's error and the detectors' move the right one
+    paired = [h for h in holes_near(right, (found.u - shift, found.v), radius_px,
+                                    slack + DETECTOR_PX, shape)
+              if abs(h.v - found.v) <= 1.5 and found.u - h.u > 0]
+    if len(paired) != 1:
+        return None
+    d = found.u - paired[0].u
     camera = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, baseline_m)
     in_cam = camera.point(np.array([found.u, found.v, d]))
     return Sighting(robot, target.name, (found.u, found.v), d, found.score,

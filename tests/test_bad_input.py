@@ -163,6 +163,15 @@ def test_sweep_and_report_leave_a_foreign_file_as_it_was(tmp_path, kind):
         Results(path)  # the library refuses it too
 
 
+def test_a_sweep_on_a_scheduler_nobody_runs_exits_2_before_touching_anything(tmp_path):
+    spec, db = tmp_path / "smoke.toml", tmp_path / "out" / "r.sqlite"
+    spec.write_text(SMOKE)
+    code, err = cli("sweep", str(spec), "--db", str(db), "--scheduler", "tcp://127.0.0.1:1")
+    assert_one_line_error(code, err, "--scheduler", "scheduler")
+    assert "cannot be reached" in err and "tcp://127.0.0.1:1" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["smoke.toml"]
+
+
 def test_report_of_a_missing_file_or_a_directory_exits_2(tmp_path):
     code, err = cli("report", str(tmp_path / "nope.sqlite"))
     assert_one_line_error(code, err, tmp_path / "nope.sqlite", "<file>")
