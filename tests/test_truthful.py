@@ -5,13 +5,17 @@ frame weighs each sighting by how well its camera's pose is known."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
+import cv2
 import numpy as np
+import pytest
 
+from mapping import Pinhole
 from sim import load_scenario, parse_scenario
 from sim.episode import Episode
 from sim.scene import Target
-from sim.target_frame import Sighting, common_frame
+from sim.target_frame import Sighting, common_frame, search_slack_px, sight
 
 
 def _targets() -> tuple[Target, ...]:
@@ -85,3 +89,48 @@ def test_a_correction_that_cannot_locate_its_final_frame_says_so():
         assert 1 <= c["frames_located"] < c["frames"]  # near the known start only
         for seen in robot["sightings"]:
             assert seen["pose"] == "failed" and seen["sd_m"] > 0.005
+
+
+def _stereo(disks_u: list[float], pinhole, disparity: float) -> tuple[np.ndarray, np.ndarray]:
+    """A bright left and right image with a dark 6 px disk at each u on the middle row,
+    shifted by ``disparity`` in the right one."""
+    images = []
+    for shift in (0.0, disparity):
+        img = np.full((pinhole.height, pinhole.width, 3), 200, np.uint8)
+        for u in disks_u:
+            centre = (round((u - shift) * 16), round(pinhole.cy * 16))
+            cv2.circle(img, centre, 6 * 16, (20, 20, 20), -1, cv2.LINE_AA, shift=4)
+        images.append(img)
+    return images[0], images[1]
+
+
+def test_a_target_is_claimed_only_where_the_camera_can_tell_it_apart():
+    """A camera 1 m above a hole (radius 2 cm: 6 px at f = 300 px; 0.1 m baseline: 30 px
+    disparity) sees it at the image centre, and a second dark disk 25 px to the side.
+    Its window is 3 sd of the predicted pixel plus the detector's 1 px, plus 3 radii:
+    with an exact pose (19 px) it holds the target alone and the sighting is made; with
+    the pose 1 deg uncertain (3 x 300 x 0.01745 + 1 = 16.7 px more) it holds both, and
+    the camera cannot tell which is the target; unless the other disk is another target
+    predicted there, nearer which it lies."""
+    pinhole = Pinhole(320, 240, 300.0, 300.0, 160.0, 120.0)
+    assert search_slack_px(1.0, 300.0, 0.0, 1.0) == pytest.approx(3 * 300 * math.radians(1) + 1)
+    assert search_slack_px(2.0, 300.0, 0.01, 0.0) == pytest.approx(3 * 300 * 0.005 + 1)
+    hole = Target("primary", "primary", "hole", np.zeros(3), np.array([0.0, 0, 1]), 0.02, 0.0)
+    beside = dataclasses.replace(hole, name="secondary", role="secondary",
+                                 position=np.array([25 / 300, 0.0, 0.0]))
+    T = np.eye(4)
+    T[2, 3] = 1.0  # MuJoCo's camera looks along its -z: down at the hole
+    left, right = _stereo([160.0, 185.0], pinhole, 30.0)
+
+    def seen(rotation_sd_deg: float, others: tuple[Target, ...] = ()):
+        return sight("r1", left, right, hole, T, pinhole, 0.1, position_sd_m=0.0,
+                     rotation_sd_deg=rotation_sd_deg, others=others)
+
+    exact = seen(0.0)
+    assert exact is not None
+    assert np.allclose(exact.pixel, (160.0, 120.0), atol=0.3)
+    assert exact.disparity == pytest.approx(30.0, abs=0.3)
+    assert np.allclose(exact.position, hole.position, atol=0.005)
+    assert seen(1.0) is None  # two holes in the window: a guess
+    told = seen(1.0, (beside,))
+    assert told is not None and np.allclose(told.pixel, exact.pixel)
