@@ -8,7 +8,7 @@ secondary holes, the panel; the one robot is sunk under the floor). A free stere
 0.35-1.5 m and beyond) and angles off the target's normal (0-89 deg), each jittered
 (distance +-5 %, angle +-2.5 deg), at a random azimuth and roll, aimed up to 8 deg off
 the primary or the secondary hole in turn; every hole in the left view is a sample.
-Both images are rendered, blurred by the lens as the task blurs them (sim/optics.py),
+Both images are rendered, blurred by the lens as the task blurs them (sim/world/optics.py),
 and searched as ``sight`` searches them (left and right, its stereo checks), as
 ``find_target`` does (with the segmentation), and each on its own with its camera's own
 projected ellipse (and, for the first configuration, the left one without blur too).
@@ -45,7 +45,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import write_results
 
-import sim  # noqa: F401  (GL backend before mujoco)
+import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from sim.world.gl import resolve_gl_backend
+
+resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
 
 # isort: split
 import cv2
@@ -56,11 +59,12 @@ from calibration import disk_template, locate_hole, log_response, to_gray
 from calibration.targets import _match
 from mapping import Pinhole, opencv_pose, world_to_camera
 from placement import CameraModel, DetectorLimits, TargetModel, detectable
-from sim import Renderer, Scene, Target, build_scene, camera_pinhole, camera_pose, load_scenario
-from sim.episode import find_target
-from sim.optics import Lens, defocus
-from sim.scenario import Scenario
-from sim.target_frame import projected_disk, search_slack_px, sight
+from sim.config.scenario import Scenario, load_scenario
+from sim.stages.episode import find_target
+from sim.stages.target_frame import projected_disk, search_slack_px, sight
+from sim.world.optics import Lens, defocus
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import Scene, Target, build_scene
 
 CONFIGS = (  # label, width, height, MSAA samples: as table1, the default, regression
     ("640x480", 640, 480, 0), ("640x480 MSAA 4", 640, 480, 4), ("320x240 MSAA 4", 320, 240, 4))

@@ -22,9 +22,13 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import print_table, write_results
 
-import sim  # noqa: F401  (GL backend before mujoco)
-from sim import Renderer, load_scenario
-from sim.episode import Episode
+import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from sim.world.gl import resolve_gl_backend
+
+resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
+from sim.config.scenario import load_scenario
+from sim.stages.episode import Episode
+from sim.world.render import Renderer
 
 STRATEGIES = {  # name: (strategy, gain)
     "cooperative entropy (taskcam)": ("cooperative", "entropy"),

@@ -16,6 +16,9 @@ import time
 from pathlib import Path
 
 import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from sim.world.gl import resolve_gl_backend
+
+resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
 
 # isort: split
 import numpy as np
@@ -32,8 +35,10 @@ from mapping import (
 )
 from mapping.integrate import share_bands
 from mapping.raycast import image_working_bytes
-from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
-from sim.ik import solve_camera_pose
+from sim.config.scenario import load_scenario
+from sim.world.ik import solve_camera_pose
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import build_scene
 
 LO, HI, RES, RANGE = np.array([-2.0, -2.0, 0.0]), np.array([2.0, 2.0, 2.0]), 0.02, 4.0
 

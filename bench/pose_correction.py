@@ -19,6 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from sim.world.gl import resolve_gl_backend
+
+resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
 
 # isort: split
 import numpy as np
@@ -30,8 +33,8 @@ TARGET_M, TARGET_DEG = 0.003, 0.2
 
 
 def one_seed(seed: int) -> list[dict[str, Any]]:
-    from sim.episode import Episode
-    from sim.scenario import load_scenario
+    from sim.config.scenario import load_scenario
+    from sim.stages.episode import Episode
 
     episode = Episode(load_scenario(seed=seed))
     start = time.perf_counter()

@@ -20,6 +20,9 @@ import sys
 from pathlib import Path
 
 import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from sim.world.gl import resolve_gl_backend
+
+resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
 
 # isort: split
 import numpy as np
@@ -31,8 +34,9 @@ from common import write_results
 from calibration.ekf import StereoCamera
 from calibration.pose import DegenerateGeometryError, estimate_pose, invert
 from mapping import camera_to_world, opencv_pose
-from sim import build_scene, load_scenario
-from sim.render import Renderer, camera_pinhole, camera_pose
+from sim.config.scenario import load_scenario
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import build_scene
 
 METHODS = ("linear", "kabsch", "sqpnp")
 

@@ -30,6 +30,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from sim.world.gl import resolve_gl_backend
+
+resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
 
 # isort: split
 import numpy as np
@@ -49,8 +52,8 @@ from placement import (
     line_of_sight,
     search,
 )
-from sim import build_scene, load_scenario
-from sim.scene import Target
+from sim.config.scenario import load_scenario
+from sim.world.scene import Target, build_scene
 
 LO, HI = np.array([-1.6, -1.6, 0.0]), np.array([1.6, 1.6, 1.8])
 

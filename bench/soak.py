@@ -1,5 +1,6 @@
 """A soak of unfamiliar scenes: random valid scenarios, each run as ``taskcam run FILE
---out DIR`` runs it and its run directory audited (sim/soak.py, sim/audit.py).
+--out DIR`` runs it and its run directory audited (sim/experiments/soak.py,
+sim/experiments/audit.py).
 
 Run from the repository root: ``python bench/soak.py`` (500 scenes, every tenth with the
 pose correction and the task on, on 2 worker processes). Each finished scene is
@@ -25,9 +26,12 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import RESULTS, machine
 
-import sim  # noqa: F401  (GL backend before mujoco)
-from sim.random_scenario import is_heavy
-from sim.soak import run_scenes, tally
+import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from sim.world.gl import resolve_gl_backend
+
+resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
+from sim.experiments.random_scenario import is_heavy
+from sim.experiments.soak import run_scenes, tally
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "soak.md"

@@ -33,10 +33,13 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import print_table, write_results
 
-import sim  # noqa: F401  (GL backend before mujoco)
-from sim.runner import _worker_init, one_thread_each, run_sweep, trial_specs
-from sim.sweep import Sweep, load_sweep
-from sim.trial import TrialSpec, run_trial
+import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from sim.world.gl import resolve_gl_backend
+
+resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
+from sim.config.sweep import Sweep, load_sweep
+from sim.experiments.runner import _worker_init, one_thread_each, run_sweep, trial_specs
+from sim.experiments.trial import TrialSpec, run_trial
 
 STAGES = ("build", "mapping", "placement", "ik", "motion", "correction", "task", "rendering",
           "total")

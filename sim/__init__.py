@@ -1,31 +1,14 @@
-"""The MuJoCo side of taskcam: scenes, rendering, IK, episodes and the CLI.
+"""The MuJoCo side of taskcam, in rooms that follow the data flow: ``config`` (scenario
+and sweep files), ``world`` (the MuJoCo world: scene, rendering, IK, motion), ``stages``
+(the episode's stages over a world), ``experiments`` (trials, sweeps, results, studies)
+and the command line (``cli``) on top.
 
-The processor-dependent code paths are pinned (sim/determinism.py) and the GL backend
-is chosen here, before anything imports numpy, cv2 or mujoco.
+Importing ``sim`` pins the processor-dependent code paths (environment variables that
+numpy, OpenCV, OpenBLAS and Mesa read when they load: sim/determinism.py) and does
+nothing else: no GL backend is probed and mujoco is not imported until a program that
+renders asks for it (:func:`sim.world.gl.resolve_gl_backend`).
 """
 
-from .determinism import is_command, pin
-from .gl import resolve_gl_backend
+from sim.determinism import pin
 
-pin(restart=is_command())  # the taskcam command starts again, pinned, if it was not
-resolve_gl_backend()
-
-from .render import Renderer, camera_pinhole, camera_pose  # noqa: E402
-from .scenario import Scenario, ScenarioError, load_scenario, parse_scenario  # noqa: E402
-from .scene import Robot, Scene, Target, build_scene  # noqa: E402
-
-__all__ = [
-    "Renderer",
-    "Robot",
-    "Scenario",
-    "ScenarioError",
-    "Scene",
-    "Target",
-    "build_scene",
-    "camera_pinhole",
-    "camera_pose",
-    "load_scenario",
-    "parse_scenario",
-    "pin",
-    "resolve_gl_backend",
-]
+pin()

@@ -9,8 +9,10 @@ import time
 import traceback
 from pathlib import Path
 
-from .results import ResultsError
-from .scenario import MISSING, ScenarioError, load_scenario
+from sim.config.scenario import MISSING, ScenarioError, load_scenario
+from sim.determinism import is_command, pin
+from sim.experiments.results import ResultsError
+from sim.world.gl import resolve_gl_backend
 
 EXIT_OK, EXIT_FAILURE, EXIT_INVALID = 0, 1, 2
 
@@ -60,9 +62,10 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ScenarioError("--out", "out", str(out), "a directory (this is a file)")
 
-    from .episode import Episode  # imports mujoco: after the arguments are known good
-    from .record import Recorder
-    from .scene import save_scene
+    resolve_gl_backend()  # this command renders: the GL backend before mujoco loads
+    from sim.stages.episode import Episode  # imports mujoco: after the arguments are known good
+    from sim.stages.record import Recorder
+    from sim.world.scene import save_scene
 
     episode = Episode(scenario)  # builds the scene: the last check of the input
     out.mkdir(parents=True, exist_ok=True)
@@ -93,15 +96,19 @@ def _invalid_db(exc: ResultsError, key: str) -> ScenarioError:
 
 
 def sweep(args: argparse.Namespace) -> int:
-    from .sweep import load_sweep
+    from sim.config.sweep import load_sweep
 
     spec = load_sweep(args.spec, args.trials)
+    resolve_gl_backend()  # this command renders: the GL backend before mujoco loads
+    from sim.world.scene import build_scene  # imports mujoco
+
+    build_scene(spec.scenario)  # the robots' bases clear of the work-piece and each other
     if args.workers < 1:
         raise ScenarioError("--workers", "workers", args.workers, "an integer >= 1")
     if args.db.exists() and not args.db.is_file():
         raise ScenarioError("--db", "db", str(args.db), "a database file (this is a directory)")
-    from .results import Results
-    from .runner import run_sweep
+    from sim.experiments.results import Results
+    from sim.experiments.runner import run_sweep
 
     if args.db.exists() and args.db.stat().st_size > 0:  # before anything starts
         try:
@@ -112,7 +119,7 @@ def sweep(args: argparse.Namespace) -> int:
         if refused is not None:
             raise _invalid_db(refused, "--db")
     if args.scheduler:
-        from .runner import scheduler_problem
+        from sim.experiments.runner import scheduler_problem
 
         if (problem := scheduler_problem(args.scheduler)) is not None:
             raise ScenarioError("--scheduler", "scheduler", args.scheduler,
@@ -132,7 +139,7 @@ def sweep(args: argparse.Namespace) -> int:
 
 
 def report(args: argparse.Namespace) -> int:
-    from .report import report as tables
+    from sim.experiments.report import report as tables
 
     if not args.db.is_file():
         found = "a directory" if args.db.is_dir() else "no such file"
@@ -150,7 +157,7 @@ def report(args: argparse.Namespace) -> int:
 
 
 def figure7(args: argparse.Namespace) -> int:
-    from placement.figure7 import figure7 as study
+    from sim.experiments.figure7 import figure7 as study
 
     if args.out.exists() and not args.out.is_dir():
         raise ScenarioError("--out", "out", str(args.out), "a directory (this is a file)")
@@ -164,6 +171,7 @@ def figure7(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    pin(restart=is_command())  # the taskcam command starts again, pinned, if it was not
     args = _parser().parse_args(argv)
     try:
         if args.command == "run":

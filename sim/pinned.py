@@ -19,7 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .determinism import PINS, late_imports, pin, started_pinned
+from sim.determinism import PINS, late_imports, pin, started_pinned
+from sim.world.gl import resolve_gl_backend
 
 # Two hinged links over a floor, lit, seen by a camera: libm (MuJoCo's kinematics) and
 # llvmpipe (its rasterising, lighting and depth) on a scene of a few triangles.
@@ -151,6 +152,7 @@ def settings() -> dict[str, Any]:
 def main(argv: list[str]) -> int:
     if argv:
         pin()
+        resolve_gl_backend()  # the program it starts (a Dask worker, say) renders
         os.execvp(argv[0], argv)
     print(json.dumps({"settings": settings(), "fingerprints": fingerprints()}, indent=2))
     return 0

@@ -1,4 +1,5 @@
-"""Shared fixtures. Importing sim first chooses the GL backend before mujoco loads."""
+"""Shared fixtures; the code paths pinned and the GL backend chosen before any test
+module loads numpy or mujoco."""
 
 from __future__ import annotations
 
@@ -9,10 +10,11 @@ from pathlib import Path
 
 import pytest
 
-import sim  # noqa: F401  (GL backend before mujoco)
 from sim.determinism import is_pytest, pin, started_pinned
+from sim.world.gl import resolve_gl_backend
 
 pin()  # processor-independent code paths here and in every process a test starts
+resolve_gl_backend()  # the tests render: the GL backend before any test module loads mujoco
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -26,10 +26,8 @@ from conftest import run_taskcam
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sim import build_scene
 from sim.cli import main
-from sim.results import Results
-from sim.scenario import (
+from sim.config.scenario import (
     SCENARIO_DIR,
     ObstacleConfig,
     Scenario,
@@ -40,7 +38,9 @@ from sim.scenario import (
     one_line,
     parse_scenario,
 )
-from sim.sweep import GENERATED, SweepConfig, load_sweep
+from sim.config.sweep import GENERATED, SweepConfig, load_sweep
+from sim.experiments.results import Results
+from sim.world.scene import build_scene
 
 SMOKE = (SCENARIO_DIR / "smoke.toml").read_text()
 
@@ -214,7 +214,7 @@ def test_report_reads_a_results_database_without_changing_it(tmp_path):
 
 KILLED_MID_TRIAL = """
 import os, signal, sys
-from sim.results import Results
+from sim.experiments.results import Results
 results = Results(sys.argv[1])
 results.add(json.loads(sys.argv[2]))
 results.db.execute("PRAGMA cache_size = 1")  # the pages spill into the file early

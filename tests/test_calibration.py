@@ -11,9 +11,11 @@ from hypothesis import strategies as st
 
 from calibration import detect_holes, disk_template, locate_hole, log_response, to_gray
 from mapping import Pinhole, opencv_pose, world_to_camera
-from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
-from sim.ik import solve_camera_pose
-from sim.target_frame import projected_disk
+from sim.config.scenario import load_scenario
+from sim.stages.target_frame import projected_disk
+from sim.world.ik import solve_camera_pose
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import build_scene
 
 
 def _disk_image(u: float, v: float, r: float, shape=(240, 320), noise: float = 0.0,

@@ -5,8 +5,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from sim import build_scene, load_scenario
-from sim.collision import Proximity
+from sim.config.scenario import load_scenario
+from sim.world.collision import Proximity
+from sim.world.scene import build_scene
 
 
 def brute_force(model: mujoco.MjModel, data: mujoco.MjData, pairs: np.ndarray,

@@ -13,12 +13,12 @@ from rerun.chunk import RrdReader
 
 from calibration.pose import rotation_deg
 from calibration.tracking import FeatureFinder, TrackerSettings
-from sim import Renderer, load_scenario
-from sim.correction import PoseCorrector
-from sim.episode import new_grid, pose_error
-from sim.ik import solve_camera_pose
-from sim.render import camera_pinhole, camera_pose
-from sim.scene import build_scene
+from sim.config.scenario import load_scenario
+from sim.stages.correction import PoseCorrector
+from sim.stages.episode import new_grid, pose_error
+from sim.world.ik import solve_camera_pose
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import build_scene
 
 TARGET_M, TARGET_DEG = 0.003, 0.2
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from sim.scenario import (
+from sim.config.scenario import (
     SCENARIO_DIR,
     SENSOR_DEFAULTS,
     Scenario,
@@ -21,7 +21,7 @@ from sim.scenario import (
     load_scenario,
     parse_scenario,
 )
-from sim.sweep import load_sweep
+from sim.config.sweep import load_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = sorted(SCENARIO_DIR.glob("*.toml"))
@@ -179,7 +179,7 @@ def test_an_unnamed_file_is_named_by_its_stem(tmp_path):
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
 def test_a_shipped_scenario_parses_and_builds(path):
-    from sim import build_scene
+    from sim.world.scene import build_scene
 
     s = load_scenario(path)  # unknown keys, types and ranges: ScenarioError
     assert set(file_values(path)) <= set(schema())

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from placement.density import Primitive, hemisphere, occlusion_density, ray_hits
-from sim import load_scenario
-from sim.generate import KeepOut, footprint, generate, keep_outs, primitive
-from sim.scene import build_scene
+from sim.config.scenario import load_scenario
+from sim.experiments.generate import KeepOut, footprint, generate, keep_outs, primitive
+from sim.world.scene import build_scene
 
 UP = np.array([0.0, 0.0, 1.0])
 

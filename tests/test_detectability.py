@@ -11,8 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import sim  # noqa: F401  (GL backend before mujoco)
-
 # isort: split
 import mujoco
 from scipy.spatial.transform import Rotation
@@ -20,9 +18,11 @@ from scipy.spatial.transform import Rotation
 from mapping import opencv_pose
 from placement import CameraModel, DetectorLimits, TargetModel, detectable
 from placement.detectability import focal_px, projected_radius, worst_partner
-from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
-from sim.optics import Lens, defocus
-from sim.target_frame import projected_disk, sight
+from sim.config.scenario import load_scenario
+from sim.stages.target_frame import projected_disk, sight
+from sim.world.optics import Lens, defocus
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import build_scene
 
 CAMERA = CameraModel(fov=math.radians(60.0), pixels=480, near=0.35, far=1.5)
 F = 240 / math.tan(math.radians(30.0))  # 415.69 px

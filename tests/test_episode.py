@@ -12,11 +12,11 @@ from rerun.chunk import RrdReader
 
 from mapping import Pinhole, opencv_pose, world_to_camera
 from placement import Region, Weights, search
-from sim import Renderer, load_scenario
-from sim.collision import clearance
-from sim.episode import Episode, target_model
-from sim.scenario import SCENARIO_DIR
-from sim.scene import Target, save_scene
+from sim.config.scenario import SCENARIO_DIR, load_scenario
+from sim.stages.episode import Episode, target_model
+from sim.world.collision import clearance
+from sim.world.render import Renderer
+from sim.world.scene import Target, save_scene
 
 
 def _final(out):
@@ -130,7 +130,7 @@ def test_robots_keep_clear_of_each_other_and_the_scene(default_run):
     scenario = load_scenario()
     positions = [np.array(r["pose"]["position"]) for r in summary["robots"]]
     assert np.linalg.norm(positions[0] - positions[1]) >= scenario.search.robot_separation_m
-    from sim.scene import build_scene
+    from sim.world.scene import build_scene
     scene = build_scene(scenario)  # the same scene: robot indices for the final model
     for robot in scene.robots:
         near = clearance(model, data, robot, scene.robots)

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from mapping import mean_entropy
-from sim import Renderer, load_scenario
-from sim.episode import Episode
+from sim.config.scenario import load_scenario
+from sim.stages.episode import Episode
+from sim.world.render import Renderer
 
 
 def explore(seed: int = 0, **mapping) -> tuple[Episode, dict]:

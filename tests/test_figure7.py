@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from placement.figure7 import INSTANCES, PRIMARY, rate_instance
 from sim.cli import main
-from sim.scenario import SCENARIO_DIR
+from sim.config.scenario import SCENARIO_DIR
+from sim.experiments.figure7 import INSTANCES, PRIMARY, rate_instance
 
 
 def test_figure7_command_writes_heatmaps_and_numbers(tmp_path, capsys):

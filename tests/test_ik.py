@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim import build_scene, load_scenario
-from sim.ik import camera_errors, solve_camera_pose
+from sim.config.scenario import load_scenario
+from sim.world.ik import camera_errors, solve_camera_pose
+from sim.world.scene import build_scene
 
 
 @pytest.fixture(scope="module")

@@ -8,9 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim import build_scene, load_scenario, parse_scenario
-from sim.scenario import SCENARIO_DIR
-from sim.scene import MODELS_DIR, ROBOT_JOINTS
+from sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
+from sim.world.scene import MODELS_DIR, ROBOT_JOINTS, build_scene
 
 
 def _step_without_warnings(model: mujoco.MjModel, data: mujoco.MjData, steps: int = 500) -> None:
@@ -51,9 +50,9 @@ def test_scenario_builds_and_steps(path):
     """Every scenario file, and every sweep file's first trial (its base scenario with
     the overrides and generated obstacles), compiles and steps cleanly."""
     if "densities" in tomllib.loads(path.read_text()):  # a sweep file
-        from sim.runner import trial_specs
-        from sim.sweep import load_sweep
-        from sim.trial import trial_scenario
+        from sim.config.sweep import load_sweep
+        from sim.experiments.runner import trial_specs
+        from sim.experiments.trial import trial_scenario
 
         scenario, _ = trial_scenario(trial_specs(load_sweep(path))[0])
     else:

@@ -10,10 +10,10 @@ import pytest
 from rerun.chunk import RrdReader
 from scipy.spatial.transform import Rotation
 
-from sim import build_scene, load_scenario
-from sim.motion import ARM_MOUNT, ErrorModel, MoveError, Mover
-from sim.planning import ArmPlanner
-from sim.scenario import MotionConfig, parse_scenario
+from sim.config.scenario import MotionConfig, load_scenario, parse_scenario
+from sim.world.motion import ARM_MOUNT, ErrorModel, MoveError, Mover
+from sim.world.planning import ArmPlanner
+from sim.world.scene import build_scene
 
 CLEARANCE_M = 0.03
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from calibration import detect_holes
-from sim.optics import Lens, defocus
+from sim.world.optics import Lens, defocus
 
 LENS = Lens(near_m=0.35, far_m=1.5, coc_px=1.5)
 

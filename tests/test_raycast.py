@@ -10,7 +10,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import sim  # noqa: F401  (GL backend before mujoco)
 from mapping import OccupancyGrid, SensorModel, first_hits, integrate_depth, opencv_pose, traverse
 
 SHAPE = (12, 10, 8)
@@ -99,7 +98,9 @@ def test_first_hits_stop_at_blocked_voxels():
 
 
 def _rendered_frame():
-    from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
+    from sim.config.scenario import load_scenario
+    from sim.world.render import Renderer, camera_pinhole, camera_pose
+    from sim.world.scene import build_scene
 
     scene = build_scene(load_scenario())
     data = scene.make_data()

@@ -36,8 +36,8 @@ import pytest
 from scipy.stats import binomtest, fisher_exact
 
 from sim.cli import main
-from sim.results import Results
-from sim.scenario import SCENARIO_DIR
+from sim.config.scenario import SCENARIO_DIR
+from sim.experiments.results import Results
 
 EASY, MEDIUM, HARD = 0.2, 0.1, 0.01
 TRIALS = 24  # paired scenes per density (scenarios/regression.toml)

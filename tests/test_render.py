@@ -10,8 +10,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mapping import Pinhole, camera_to_world, opencv_pose, world_to_camera
-from sim import Renderer, build_scene, camera_pinhole, camera_pose, load_scenario
-from sim.gl import resolve_gl_backend
+from sim.config.scenario import load_scenario
+from sim.world.gl import resolve_gl_backend
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import build_scene
 
 
 @pytest.fixture(scope="module")

@@ -24,10 +24,10 @@ from typing import Any
 
 import pytest
 
+from sim.config.sweep import load_sweep
 from sim.determinism import PINS, late_imports, started_pinned
+from sim.experiments.runner import pinned_here, run_sweep, worker_pool
 from sim.pinned import fingerprints, settings
-from sim.runner import pinned_here, run_sweep, worker_pool
-from sim.sweep import load_sweep
 
 STORED = Path(__file__).with_name("reproducibility.json")
 TASKCAM = Path(sys.executable).parent / "taskcam"
@@ -182,7 +182,7 @@ def test_sweep_workers_are_pinned():
 
 def test_a_program_that_loads_numpy_first_is_not_trusted_with_trials():
     """numpy read its CPU features before sim could pin them: its sweeps run in workers."""
-    probe = ("import json, numpy, sim.runner as r, sim.determinism as d; "
+    probe = ("import json, numpy, sim.experiments.runner as r, sim.determinism as d; "
              "print(json.dumps([r.pinned_here(), d.late_imports()]))")
     done = subprocess.run([sys.executable, "-c", probe], env=unpinned_environment(),
                           capture_output=True, text=True, timeout=120)

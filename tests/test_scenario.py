@@ -9,9 +9,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from sim import ScenarioError, load_scenario, parse_scenario
 from sim.cli import main
-from sim.scenario import DEFAULT_SCENARIO, Scenario
+from sim.config.scenario import (
+    DEFAULT_SCENARIO,
+    Scenario,
+    ScenarioError,
+    load_scenario,
+    parse_scenario,
+)
 
 
 def test_default_file_parses_and_is_frozen():

@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sim.audit import CORRECTION_TOL_M, POSE_TOL_DEG, POSE_TOL_M, Audit, audit_run
-from sim.random_scenario import draw_scenario, is_heavy, to_toml
-from sim.scenario import ScenarioError, parse_scenario
-from sim.scene import build_scene
-from sim.soak import Job, discard_reason, run_file, run_scenes, tally
+from sim.config.scenario import ScenarioError, parse_scenario
+from sim.experiments.audit import CORRECTION_TOL_M, POSE_TOL_DEG, POSE_TOL_M, Audit, audit_run
+from sim.experiments.random_scenario import draw_scenario, is_heavy, to_toml
+from sim.experiments.soak import Job, discard_reason, run_file, run_scenes, tally
+from sim.world.scene import build_scene
 
 # Scenes 0-23 of the soak's draws at 240 x 180 (the smallest size at which most random
 # views still resolve the holes): 22 light, 2 (9 and 19) with correction and task on;

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-import sim  # noqa: F401  (GL backend before mujoco)
 from mapping import Pinhole
 from mapping.stereo import StereoSettings, stereo_depth
-from sim import Renderer, build_scene, camera_pinhole, load_scenario
-from sim.ik import solve_camera_pose
+from sim.config.scenario import load_scenario
+from sim.world.ik import solve_camera_pose
+from sim.world.render import Renderer, camera_pinhole
+from sim.world.scene import build_scene
 
 VIEWS = ("close", "start")
 

@@ -18,12 +18,12 @@ from pathlib import Path
 import pytest
 
 from sim.cli import main
-from sim.report import cells, markdown, report, wilson
-from sim.results import Results
-from sim.runner import run_sweep, trial_specs
-from sim.scenario import SCENARIO_DIR
-from sim.sweep import load_sweep
-from sim.trial import run_trial
+from sim.config.scenario import SCENARIO_DIR
+from sim.config.sweep import load_sweep
+from sim.experiments.report import cells, markdown, report, wilson
+from sim.experiments.results import Results
+from sim.experiments.runner import run_sweep, trial_specs
+from sim.experiments.trial import run_trial
 
 TINY = (SCENARIO_DIR / "smoke.toml").read_text()
 TABLES = ("trials", "outcomes", "successes")

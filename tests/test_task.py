@@ -13,16 +13,11 @@ import pytest
 from rerun.chunk import RrdReader
 
 from mapping import Pinhole, voxels_of
-from sim import Renderer, load_scenario
-from sim.audit import audit_run
-from sim.episode import new_grid
-from sim.ik import solve_camera_pose
-from sim.optics import Lens
-from sim.record import Recorder
-from sim.render import camera_pinhole, camera_pose
-from sim.scenario import ObstacleConfig, Scenario
-from sim.scene import Robot, Scene, build_scene, save_scene
-from sim.task import (
+from sim.config.scenario import ObstacleConfig, Scenario, load_scenario
+from sim.experiments.audit import audit_run
+from sim.stages.episode import new_grid
+from sim.stages.record import Recorder
+from sim.stages.task import (
     BLUR_MARGIN_PX,
     MIN_POINTS,
     Camera,
@@ -32,6 +27,10 @@ from sim.task import (
     panel_mask,
     panel_model,
 )
+from sim.world.ik import solve_camera_pose
+from sim.world.optics import Lens
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import Robot, Scene, build_scene, save_scene
 
 VIEW_FROM = np.array([-0.6, -0.3, 0.5])  # camera offset from the slot (m)
 
@@ -135,8 +134,8 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     robot ended: its ``pose`` is ``scene.xml``'s keyframe ``final``, its ``placements``
     hold both moves with their poses, and its sightings say they were made from the
     first."""
-    import sim.task as task_module
-    from sim.episode import Episode
+    import sim.stages.task as task_module
+    from sim.stages.episode import Episode
 
     base = load_scenario()
     s = dataclasses.replace(base, correction=dataclasses.replace(base.correction, enabled=False),

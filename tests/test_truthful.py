@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from mapping import Pinhole
-from sim import load_scenario, parse_scenario
-from sim.episode import Episode
-from sim.scene import Target
-from sim.target_frame import Sighting, common_frame, search_slack_px, sight
+from sim.config.scenario import load_scenario, parse_scenario
+from sim.stages.episode import Episode
+from sim.stages.target_frame import Sighting, common_frame, search_slack_px, sight
+from sim.world.scene import Target
 
 
 def _targets() -> tuple[Target, ...]:

@@ -32,7 +32,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .scenario import (
+from sim.config.scenario import (
     SCENARIO_DIR,
     Checked,
     Scenario,
@@ -144,7 +144,4 @@ def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     scenario = parse_scenario(_merge(base, {**overrides, "obstacles": []}), source)
     if not scenario.task.enabled:
         raise ScenarioError(source, "task.enabled", False, "true: a sweep judges the task")
-    from .scene import build_scene  # imports mujoco
-
-    build_scene(scenario)  # the robots' bases clear of the work-piece and of each other
     return Sweep(config, scenario, str(path))

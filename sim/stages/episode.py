@@ -2,14 +2,14 @@
 
 The stages, in order:
 1. the robots map the target region into the occupancy grid, choosing views by
-   expected information (sim/exploration.py);
+   expected information (sim/stages/exploration.py);
 2. robot by robot, the rating function is searched over known-free voxels (the robots
    placed before count as occluders, at their commanded poses); the best candidates
    from which the hole detector can find the target (placement.detectable) are
    tried in turn until one is reachable by collision-avoiding IK (base and arm) along a
    path that keeps clear of everything, and sees its target with no geometry in the
    way; the robot then follows that path in physics, through its position actuators,
-   with its positioning errors (sim/motion.py), before the next robot plans;
+   with its positioning errors (sim/world/motion.py), before the next robot plans;
 3. the scene is re-rendered from the reached poses and each target is located in the
    image.
 
@@ -58,21 +58,20 @@ from placement import (
     search,
     target_points,
 )
-
-from .collision import blocked_rays, robot_points
-from .correction import ARM_REACH_M, Correction, PoseCorrector, prior_pose_sd
-from .exploration import Exploration, gain_model
-from .ik import IKResult
-from .motion import ErrorModel, MotionResult, Mover
-from .optics import Lens
-from .planning import ArmPlanner
-from .record import Recorder
-from .render import Renderer, camera_pinhole, camera_pose
-from .scenario import Scenario
-from .scene import Robot, Scene, Target, build_scene, yaw_quat
-from .sensing import DepthSensor
-from .target_frame import Sighting, common_frame, in_measured_frame, projected_disk, sight
-from .task import Camera, InsertionTask, TaskResult
+from sim.config.scenario import Scenario
+from sim.stages.correction import ARM_REACH_M, Correction, PoseCorrector, prior_pose_sd
+from sim.stages.exploration import Exploration, gain_model
+from sim.stages.record import Recorder
+from sim.stages.target_frame import Sighting, common_frame, in_measured_frame, projected_disk, sight
+from sim.stages.task import Camera, InsertionTask, TaskResult
+from sim.world.collision import blocked_rays, robot_points
+from sim.world.ik import IKResult
+from sim.world.motion import ErrorModel, MotionResult, Mover
+from sim.world.optics import Lens
+from sim.world.planning import ArmPlanner
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+from sim.world.scene import Robot, Scene, Target, build_scene, yaw_quat
+from sim.world.sensing import DepthSensor
 
 VERSION = "0.1.0"
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
@@ -281,7 +280,7 @@ class Episode:
     # ------------------------------------------------------------ stages
 
     def map(self, renderer: Renderer) -> dict[str, Any]:
-        """Stage 1: cooperative mapping by expected information (sim/exploration.py)."""
+        """Stage 1: cooperative mapping by expected information (sim/stages/exploration.py)."""
         s = self.s
         sensor = DepthSensor(renderer, self.pinhole, s.mapping.depth_source, s.camera.baseline_m,
                              self.scene.robot_geoms())
@@ -597,7 +596,7 @@ class Episode:
 
     def task(self, placements: dict[str, list[Placement]], frame: dict[str, Any],
              renderer: Renderer) -> TaskResult:
-        """Stage 4: guide the panel into its slot with the placed cameras (sim/task.py);
+        """Stage 4: guide the panel into its slot with the placed cameras (sim/stages/task.py);
         a camera that keeps losing the panel is placed again on the updated map. Not
         attempted when no camera located the primary target: there is no slot to go to."""
         s = self.s

@@ -10,11 +10,10 @@ import mujoco
 import numpy as np
 
 from placement import circle_in_plane
+from sim.config.scenario import Scenario, ScenarioError
+from sim.world.textures import as_files, link_files, paint
 
-from .scenario import Scenario, ScenarioError
-from .textures import as_files, link_files, paint
-
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 ROBOT_XML = MODELS_DIR / "camera_robot.xml"
 WORKPIECE_XML = MODELS_DIR / "workpiece.xml"
 PANEL_XML = MODELS_DIR / "panel.xml"
@@ -100,7 +99,7 @@ class Scene:
     robots: tuple[Robot, ...]
     targets: tuple[Target, ...]
     start_qpos: np.ndarray
-    textures: dict[str, np.ndarray]  # painted (sim/textures.py), by name
+    textures: dict[str, np.ndarray]  # painted (sim/world/textures.py), by name
 
     def robot_geoms(self) -> np.ndarray:
         """Bool per geom id: does it belong to a robot?"""

@@ -2,7 +2,7 @@
 every placement method run on it from the same start.
 
 1. Obstacles are generated around the primary target until the requested occlusion
-   density is reached (sim/generate.py); the density achieved is recorded.
+   density is reached (sim/experiments/generate.py); the density achieved is recorded.
 2. The robots map the scene once (the episode's mapping stage).
 3. Each method starts from the mapped state (the robots where mapping left them, the
    same map) with its own random stream, seeded by the trial and the method's name, so
@@ -25,12 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from .episode import Episode
-from .generate import generate, keep_outs
-from .render import Renderer
-from .scenario import Scenario
-from .scene import build_scene
-from .sweep import MethodConfig
+from sim.config.scenario import Scenario
+from sim.config.sweep import MethodConfig
+from sim.experiments.generate import generate, keep_outs
+from sim.stages.episode import Episode
+from sim.world.render import Renderer
+from sim.world.scene import build_scene
 
 
 @dataclass(frozen=True)

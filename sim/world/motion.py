@@ -28,9 +28,9 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .collision import Clearance, Proximity
-from .scenario import MotionConfig
-from .scene import JOINT_SPEEDS, ROBOT_JOINTS, Robot
+from sim.config.scenario import MotionConfig
+from sim.world.collision import Clearance, Proximity
+from sim.world.scene import JOINT_SPEEDS, ROBOT_JOINTS, Robot
 
 ARM_MOUNT = "arm_base"  # the body the suspension tilts, about the base's floor point
 MIN_JERK_STRETCH = 15 / 8  # a minimum-jerk move's duration over its constant-speed one

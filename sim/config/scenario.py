@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 DEFAULT_SCENARIO = SCENARIO_DIR / "default.toml"
 MAX_ROBOTS = 4
 
@@ -331,7 +331,7 @@ class TaskConfig(Checked):
     stop_m: float = _positive(0.001)  # stop when the measured displacement is below this
     lost_limit: int = _check(lambda v: 1 <= v <= 100, "an integer 1 to 100", 3)
     replace: bool = True  # re-place a camera that lost the panel lost_limit times running
-    # pixels matched around the panel: at most the blurred margin (sim/task.py)
+    # pixels matched around the panel: at most the blurred margin (sim/stages/task.py)
     stereo_margin_px: int = _check(lambda v: 8 <= v <= 48, "an integer 8 to 48", 48)
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from .scene import Robot
+from sim.world.scene import Robot
 
 
 def collision_geoms(model: mujoco.MjModel, bodies: frozenset[int]) -> list[int]:

@@ -21,8 +21,7 @@ import numpy as np
 from calibration import holes_near
 from calibration.ekf import StereoCamera
 from mapping import Pinhole, opencv_pose, world_to_camera
-
-from .scene import Target
+from sim.world.scene import Target
 
 # A target is looked for where the believed pose puts it, as far around as that
 # prediction is uncertain: SIGMAS standard deviations of its pixel, plus the detector's

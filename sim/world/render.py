@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 
 from mapping import Pinhole
+from sim.world.gl import require_gl_backend
 
 
 def camera_pinhole(model: mujoco.MjModel, camera: str) -> Pinhole:
@@ -73,6 +74,7 @@ class Renderer:
     """
 
     def __init__(self, model: mujoco.MjModel, width: int, height: int) -> None:
+        require_gl_backend()
         self.model = model
         self._renderer: mujoco.Renderer | None = mujoco.Renderer(model, height, width)
         self._sky = 0.999 * far_plane(model)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .results import Results, ResultsError
+from sim.experiments.results import Results, ResultsError
 
 Z95 = 1.959963984540054
 

@@ -19,9 +19,8 @@ import cv2
 import numpy as np
 
 from mapping import OccupancyGrid, SensorModel
-
-from .rating import CameraModel, TargetModel
-from .search import RatingField, search
+from placement.rating import CameraModel, TargetModel
+from placement.search import RatingField, search
 
 SIZE = 100
 PRIMARY = TargetModel("primary", np.array([50.0, 50.0, 0.0]), np.array([1.0, 0.0, 0.0]), 1.0)

@@ -2,7 +2,7 @@
 distributed cluster; each finished trial is stored at once (one transaction), so an
 interrupted sweep resumes where it stopped, without losing or repeating a trial.
 
-Trials are independent and seeded by their own indices (sim/sweep.py), so the stored
+Trials are independent and seeded by their own indices (sim/config/sweep.py), so the stored
 rows are the same whichever worker ran which trial, and in whatever order they ended;
 and, their processes pinned to the same code paths (sim/determinism.py), on whichever
 machine. A trial runs in this process only if it started pinned; otherwise in a worker
@@ -25,10 +25,11 @@ from typing import Any
 
 from tqdm import tqdm
 
-from .determinism import PINS, late_imports, pin, started_pinned
-from .results import Results
-from .sweep import Sweep
-from .trial import TrialSpec, run_trial
+from sim.config.sweep import Sweep
+from sim.determinism import PINS, late_imports, pin, started_pinned
+from sim.experiments.results import Results
+from sim.experiments.trial import TrialSpec, run_trial
+from sim.world.gl import resolve_gl_backend
 
 PR_SET_PDEATHSIG = 1  # prctl option: the signal a process gets when its parent dies
 
@@ -57,7 +58,7 @@ def _worker_init() -> None:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     pin()  # inherited already; in case a worker is started otherwise
-    import sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
+    resolve_gl_backend()  # inherited already (MUJOCO_GL); else chosen before mujoco loads
 
 
 # A trial already uses more than one core now and then (OpenCV, numba, BLAS, Mesa's

@@ -1,6 +1,6 @@
-"""The soak's scenes: draw a random valid scenario (sim/random_scenario.py), write it as
+"""The soak's scenes: draw a random valid scenario (sim/experiments/random_scenario.py), write it as
 a TOML file, run it as a user would (``taskcam run FILE --out DIR``, through the CLI's
-own function, in a worker process) and audit the run directory (sim/audit.py).
+own function, in a worker process) and audit the run directory (sim/experiments/audit.py).
 
 A draw the CLI rejects as invalid input (exit 2: the scenario parser or the scene
 builder) is discarded, its reason (the key named) counted, and the next draw of the
@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from .audit import Finding, audit_run
-from .cli import main
-from .random_scenario import SIZES, draw_scenario, is_heavy, to_toml
-from .runner import _worker_init, one_thread_each
-from .scenario import load_scenario
+from sim.cli import main
+from sim.config.scenario import load_scenario
+from sim.experiments.audit import Finding, audit_run
+from sim.experiments.random_scenario import SIZES, draw_scenario, is_heavy, to_toml
+from sim.experiments.runner import _worker_init, one_thread_each
 
 MAX_DRAWS = 25  # draws tried for one scene before it counts as having none valid
 _KEY = re.compile(r"key '([^']*)'")

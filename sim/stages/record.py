@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from mapping import OccupancyGrid, Pinhole, opencv_pose
 
 if TYPE_CHECKING:
-    from .correction import Correction
+    from sim.stages.correction import Correction
 
 
 def _colormap(values: np.ndarray) -> np.ndarray:

@@ -17,8 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from placement.density import Primitive, occlusion_density
-
-from .scenario import ObstacleConfig, Scenario
+from sim.config.scenario import ObstacleConfig, Scenario
 
 TOLERANCE = 0.02  # the achieved density is within this of the request
 AIM = 0.005  # drawing stops this close below the request

@@ -25,7 +25,7 @@ Checks, each a kind of :class:`Finding`:
   reported error agrees with its estimated pose against the true one;
 - ``schema``: the summary lacks what the checks need (named); ``traceback``, ``crash``
   and ``timeout``: the run raised, killed its process or overran (found by the
-  runner, sim/soak.py, not here).
+  runner, sim/experiments/soak.py, not here).
 
 The checks are pure: they read the three files and nothing else (mujoco only to load
 the scenes, put them at a keyframe and cast rays).
@@ -44,7 +44,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from .scenario import Scenario
+from sim.config.scenario import Scenario
 
 # MuJoCo writes MJCF numbers with 6 significant digits, so a camera pose read back from
 # scene.xml's keyframes is off the one the run computed by the rounding of every joint

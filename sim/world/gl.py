@@ -68,3 +68,13 @@ def resolve_gl_backend(environ: dict[str, str] | None = None) -> str:
         "no offscreen GL backend: install EGL (apt-get install libegl1 libgl1-mesa-dri) "
         "or OSMesa (apt-get install libosmesa6)"
     )
+
+
+def require_gl_backend() -> str:
+    """The GL backend mujoco was loaded with; GLError if none was chosen before it loaded
+    (a program that renders calls :func:`resolve_gl_backend` first)."""
+    chosen = os.environ.get("MUJOCO_GL")
+    if not chosen:
+        raise GLError("no GL backend was chosen before mujoco loaded: call "
+                      "sim.world.gl.resolve_gl_backend() before importing what renders")
+    return chosen

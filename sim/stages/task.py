@@ -4,7 +4,7 @@ its slot, and success is judged from where it really ends.
 1. **Carry.** The panel (a mocap body: carried kinematically) goes open-loop from where
    it lies to a point ``approach_m`` above its slot, arriving ``carry_error_m`` off.
 2. **Measure.** Every placed camera renders its stereo pair through its lens (defocus
-   from the circle of confusion of each pixel's depth, sim/optics.py); stereo matching
+   from the circle of confusion of each pixel's depth, sim/world/optics.py); stereo matching
    gives depth; the panel's pixels are found by their colour (the hull of its yellow
    squares) and carried into the world through the camera's corrected pose; the panel's
    CAD model is fitted to the points of all cameras together, or, if they disagree,
@@ -43,12 +43,11 @@ import numpy as np
 from mapping import BoxModel, OccupancyGrid, Pinhole, fit_model, move_object, opencv_pose
 from mapping.cad import to_object
 from mapping.stereo import StereoSettings, stereo_depth
-
-from .optics import Lens, defocus
-from .record import Recorder
-from .render import Renderer
-from .scenario import TaskConfig
-from .scene import Robot, Scene
+from sim.config.scenario import TaskConfig
+from sim.stages.record import Recorder
+from sim.world.optics import Lens, defocus
+from sim.world.render import Renderer
+from sim.world.scene import Robot, Scene
 
 MIN_POINTS = 150  # panel points a measurement needs, over all cameras
 # A fit is good when half the points are this close to it and this many within 1 cm,

@@ -9,9 +9,8 @@ import mujoco
 import numpy as np
 
 from mapping import Pinhole, stereo_depth
-
-from .render import Renderer
-from .scene import Robot
+from sim.world.render import Renderer
+from sim.world.scene import Robot
 
 
 class DepthSensor:

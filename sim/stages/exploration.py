@@ -31,13 +31,12 @@ from mapping import (
     opencv_pose,
     region_mask,
 )
-
-from .collision import Proximity
-from .ik import IKSettings, solve_camera_pose
-from .render import camera_pose
-from .scenario import Scenario
-from .scene import Robot, Scene
-from .sensing import DepthSensor
+from sim.config.scenario import Scenario
+from sim.world.collision import Proximity
+from sim.world.ik import IKSettings, solve_camera_pose
+from sim.world.render import camera_pose
+from sim.world.scene import Robot, Scene
+from sim.world.sensing import DepthSensor
 
 # Mapping views need not be exact: the view is rated where the camera really is.
 VIEW_IK = IKSettings(max_iterations=60, position_tolerance_m=0.005,

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from .collision import Proximity
-from .ik import IKResult, IKSettings, solve_camera_pose
-from .motion import dense_path
-from .scene import Robot, Scene
+from sim.world.collision import Proximity
+from sim.world.ik import IKResult, IKSettings, solve_camera_pose
+from sim.world.motion import dense_path
+from sim.world.scene import Robot, Scene
 
 
 @dataclass(frozen=True)

@@ -61,10 +61,9 @@ from calibration.tracking import (
     TrackerSettings,
 )
 from mapping import OccupancyGrid, Pinhole, mujoco_pose, opencv_pose
-
-from .render import Renderer, camera_pose
-from .scenario import CorrectionConfig, MotionConfig
-from .scene import Robot, Scene
+from sim.config.scenario import CorrectionConfig, MotionConfig
+from sim.world.render import Renderer, camera_pose
+from sim.world.scene import Robot, Scene
 
 WIDER = 3.0  # the final frame's second search: this many times search_px and max_jump
 # The accuracy a trusted correction holds: the pose-correction benchmark's moves are all

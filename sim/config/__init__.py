@@ -1,0 +1,2 @@
+"""Configuration: the scenario and sweep files, parsed against typed dataclasses
+that check themselves."""
