@@ -56,15 +56,15 @@ import mujoco
 from scipy.spatial.transform import Rotation
 
 from calibration import disk_template, locate_hole, log_response, to_gray
-from calibration.targets import _match
+from calibration.target_frame import projected_disk, search_slack_px, sight
+from calibration.targets import Target, _match
 from mapping import Pinhole, opencv_pose, world_to_camera
 from placement import CameraModel, DetectorLimits, TargetModel, detectable
 from sim.config.scenario import Scenario, load_scenario
-from sim.stages.episode import find_target
-from sim.stages.target_frame import projected_disk, search_slack_px, sight
+from sim.stages.look import find_target
 from sim.world.optics import Lens, defocus
 from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import Scene, Target, build_scene
+from sim.world.scene import Scene, build_scene
 
 CONFIGS = (  # label, width, height, MSAA samples: as table1, the default, regression
     ("640x480", 640, 480, 0), ("640x480 MSAA 4", 640, 480, 4), ("320x240 MSAA 4", 320, 240, 4))

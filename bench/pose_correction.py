@@ -38,7 +38,7 @@ def one_seed(seed: int) -> list[dict[str, Any]]:
 
     episode = Episode(load_scenario(seed=seed))
     start = time.perf_counter()
-    summary, _, _ = episode.run()
+    summary, _ = episode.run()
     elapsed = time.perf_counter() - start
     rows = []
     for robot in summary["robots"]:

@@ -43,6 +43,7 @@ from common import print_table, write_results
 # isort: split
 import mujoco
 
+from calibration.targets import Target
 from mapping import OccupancyGrid, SensorModel
 from placement import (
     CameraModel,
@@ -53,7 +54,7 @@ from placement import (
     search,
 )
 from sim.config.scenario import load_scenario
-from sim.world.scene import Target, build_scene
+from sim.world.scene import build_scene
 
 LO, HI = np.array([-1.6, -1.6, 0.0]), np.array([1.6, 1.6, 1.8])
 

@@ -2,6 +2,7 @@
 camera's pose from them (eq. 5-6, Kabsch, SQPnP), recursive pose statistics (eq. 7),
 fiducial EKFs (eq. 10-12) and bundle adjustment of stereo keyframes. Free of MuJoCo."""
 
+from .errors import CalibrationError
 from .targets import (
     HoleDetection,
     detect_holes,
@@ -12,5 +13,5 @@ from .targets import (
     to_gray,
 )
 
-__all__ = ["HoleDetection", "detect_holes", "disk_template", "holes_near", "locate_hole",
-           "log_response", "to_gray"]
+__all__ = ["CalibrationError", "HoleDetection", "detect_holes", "disk_template", "holes_near",
+           "locate_hole", "log_response", "to_gray"]

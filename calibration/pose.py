@@ -23,12 +23,14 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .errors import CalibrationError
+
 METHODS = ("linear", "kabsch", "sqpnp")
 FLAT = 1e-3  # smallest-to-largest spread ratio below which points count as flat
 FALLBACK = {"linear": ("kabsch", "sqpnp"), "kabsch": ("sqpnp",), "sqpnp": ("kabsch",)}
 
 
-class DegenerateGeometryError(ValueError):
+class DegenerateGeometryError(CalibrationError):
     """The fiducials cannot determine the pose with this estimator."""
 
 
@@ -140,7 +142,8 @@ def estimate_pose(world: np.ndarray, camera: np.ndarray, pixels: np.ndarray, K: 
     """g01 by ``method``; on degenerate geometry, by its fallbacks in turn (the note says
     why). Raises DegenerateGeometryError if none can."""
     if method not in METHODS:
-        raise ValueError(f"unknown pose estimator {method!r}; one of {', '.join(METHODS)}")
+        raise CalibrationError(f"unknown pose estimator {method!r}; one of "
+                               f"{', '.join(METHODS)}")
     reasons = []
     for m in (method, *FALLBACK[method]):
         try:

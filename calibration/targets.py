@@ -1,4 +1,5 @@
-"""Circular-hole targets in images: Laplacian-of-Gaussian filtering, then template matching.
+"""Circular-hole targets: where one is in the world, and finding it in images by
+Laplacian-of-Gaussian filtering, then template matching.
 
 A hole is a dark disk on a brighter plate. The scale-normalised LoG response of a
 disk of radius r peaks at its centre for sigma = r / sqrt(2) (sec. 2.2); matching a
@@ -12,6 +13,29 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from placement.rating import circle_in_plane
+
+
+@dataclass(frozen=True)
+class Target:
+    """A circular-hole target in the world frame (m)."""
+
+    name: str
+    role: str  # "primary" or "secondary"
+    geom: str  # geom name in the simulated world's model
+    position: np.ndarray  # centre of the hole's visible face
+    normal: np.ndarray  # unit, pointing out of the plate
+    radius: float
+    st_error: float
+
+    def rim(self, count: int = 8, scale: float = 1.0) -> np.ndarray:
+        """``count`` points on the rim circle (scaled by ``scale``), shape (count, 3)."""
+        return self.position + circle_in_plane(self.normal, scale * self.radius, count)
+
+    def summary(self) -> dict[str, object]:
+        return {"name": self.name, "role": self.role, "position": self.position.tolist(),
+                "normal": self.normal.tolist(), "radius": self.radius}
 
 
 @dataclass(frozen=True)

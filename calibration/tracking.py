@@ -27,6 +27,7 @@ triangulated over the camera's whole path, not just the head's baseline.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import cv2
@@ -210,10 +211,23 @@ class FiducialTracker:
 
     def add(self, found: StereoFeatures, predicted: np.ndarray) -> Frame:
         """A later frame, its pose predicted (g01): locate it and extend the tracks."""
+        return self._add(found, predicted, self.settings)
+
+    def retry(self, found: StereoFeatures, predicted: np.ndarray, wider: float) -> Frame:
+        """The last frame, which was not located, tracked again: its fiducials looked for
+        ``wider`` times as far from their predicted pixels and its pose allowed as much
+        further from the prediction."""
+        assert self.frames and not self.frames[-1].located, "only a frame not located"
+        self.frames.pop()
         s = self.settings
+        return self._add(found, predicted, dataclasses.replace(
+            s, search_px=wider * s.search_px, max_jump_m=wider * s.max_jump_m,
+            max_jump_deg=wider * s.max_jump_deg))
+
+    def _add(self, found: StereoFeatures, predicted: np.ndarray, s: TrackerSettings) -> Frame:
         points = np.array(self.fiducials.points)
         descriptors = np.array(self.fiducials.descriptors)
-        g01 = self._locate(found, predicted, points, descriptors)
+        g01 = self._locate(found, predicted, points, descriptors, s)
         if g01 is None:
             frame = Frame(predicted, {}, located=False)
             self.frames.append(frame)
@@ -230,8 +244,7 @@ class FiducialTracker:
         return frame
 
     def _locate(self, found: StereoFeatures, predicted: np.ndarray, points: np.ndarray,
-                descriptors: np.ndarray) -> np.ndarray | None:
-        s = self.settings
+                descriptors: np.ndarray, s: TrackerSettings) -> np.ndarray | None:
         pairs = guided_matches(self.camera, predicted, points, descriptors, found,
                                s.search_px, s.ratio)
         if len(pairs) < s.min_inliers:

@@ -9,6 +9,7 @@ from .camera import (
     opencv_pose,
     world_to_camera,
 )
+from .errors import MappingError
 from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit, stored_log_odds
 from .integrate import integrate_depth
 from .raycast import first_hits, mark_free_image, traverse
@@ -21,6 +22,7 @@ __all__ = [
     "MUJOCO_TO_OPENCV",
     "BoxModel",
     "GainModel",
+    "MappingError",
     "OccupancyGrid",
     "Pinhole",
     "SensorModel",

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
+from .errors import MappingError
+
 LOG_ODDS_SCALE = 1000.0  # stored log-odds units per nat
 
 
@@ -34,7 +36,7 @@ class SensorModel:
 
     def __post_init__(self) -> None:
         if not 0 < self.clamp_min < self.miss < 0.5 < self.hit < self.clamp_max < 1:
-            raise ValueError(
+            raise MappingError(
                 f"sensor model needs 0 < clamp_min < miss < 0.5 < hit < clamp_max < 1, got {self}"
             )
 

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from .camera import Pinhole
+from .errors import MappingError
 
 __all__ = ["StereoSettings", "stereo_depth"]
 
@@ -54,7 +55,7 @@ class StereoSettings:
         if not 0 < self.min_disparity_px < self.num_disparities:
             problems.append(f"min_disparity_px {self.min_disparity_px}: in (0, num_disparities)")
         if problems:
-            raise ValueError("invalid stereo settings: " + "; ".join(problems))
+            raise MappingError("invalid stereo settings: " + "; ".join(problems))
 
 
 def _matcher(settings: StereoSettings, channels: int) -> cv2.StereoSGBM:
@@ -95,7 +96,7 @@ def _check_image(name: str, image: np.ndarray, camera: Pinhole) -> np.ndarray:
     shape = (camera.height, camera.width)
     if image.dtype != np.uint8 or image.shape[:2] != shape or image.ndim not in (2, 3) or (
             image.ndim == 3 and image.shape[2] != 3):
-        raise ValueError(f"{name} image must be uint8 of shape {shape} or {(*shape, 3)}, "
+        raise MappingError(f"{name} image must be uint8 of shape {shape} or {(*shape, 3)}, "
                          f"got {image.dtype} {image.shape}")
     return np.ascontiguousarray(image)
 
@@ -115,11 +116,12 @@ def stereo_depth(left_rgb: np.ndarray, right_rgb: np.ndarray, camera: Pinhole,
     small object; SGBM's smoothing paths then end at the window's edges.
     """
     if not baseline_m > 0:
-        raise ValueError(f"baseline_m must be > 0, got {baseline_m}")
+        raise MappingError(f"baseline_m {baseline_m}: a number of metres > 0")
     left = _check_image("left", left_rgb, camera)
     right = _check_image("right", right_rgb, camera)
     if left.shape != right.shape:
-        raise ValueError(f"left and right images differ in shape: {left.shape}, {right.shape}")
+        raise MappingError(f"left and right images differ in shape: {left.shape}, "
+                           f"{right.shape}; accepted: images of one shape")
     if window is None:
         return _depth(left, right, camera, baseline_m, settings, 0)
     rows, cols = (slice(*w.indices(n)[:2]) for w, n in

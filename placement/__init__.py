@@ -1,6 +1,7 @@
 """Camera placement: the rating function (eq. 1-4), visibility and search. Free of MuJoCo."""
 
 from .detectability import DetectorLimits, detectable
+from .errors import PlacementError
 from .next_best_view import information_gain, look_at
 from .occluders import Hull, above_plane, expand, expanded_hulls, grid_occluders, target_outline
 from .rating import (
@@ -32,6 +33,7 @@ __all__ = [
     "ClearanceMap",
     "DetectorLimits",
     "Hull",
+    "PlacementError",
     "RatingField",
     "Ratings",
     "Region",

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import PlacementError
 from .rating import CameraModel, TargetModel
 
 
@@ -40,9 +41,10 @@ class DetectorLimits:
 
     def __post_init__(self) -> None:
         if not (self.min_radius_px > 0 and math.isfinite(self.min_radius_px)):
-            raise ValueError(f"min_radius_px {self.min_radius_px}: a number of pixels > 0")
+            raise PlacementError(f"min_radius_px {self.min_radius_px}: a number of pixels > 0")
         if not 0 < self.max_off_normal_deg < 90:
-            raise ValueError(f"max_off_normal_deg {self.max_off_normal_deg}: degrees in (0, 90)")
+            raise PlacementError(f"max_off_normal_deg {self.max_off_normal_deg}: "
+                                 "degrees in (0, 90)")
 
 
 def focal_px(camera: CameraModel) -> float:

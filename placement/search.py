@@ -17,6 +17,7 @@ import numpy as np
 
 from mapping import LOG_ODDS_SCALE, OccupancyGrid, stored_log_odds
 
+from .errors import PlacementError
 from .occluders import Hull, expanded_hulls, grid_occluders
 from .rating import CameraModel, Ratings, TargetModel, Weights, circle_in_plane, rate_best
 from .tfv import clearance_map
@@ -146,7 +147,8 @@ def _select(grid: OccupancyGrid, positions: np.ndarray, targets: Sequence[Target
         return d <= settings.max_distance
     if settings.strategy == "random":
         if rng is None:
-            raise ValueError("the random search strategy needs a random generator")
+            raise PlacementError("rng None: the random search strategy needs a "
+                                 "numpy Generator")
         keep = np.zeros(len(positions), dtype=bool)
         keep[rng.choice(len(positions), min(settings.samples, len(positions)),
                         replace=False)] = True

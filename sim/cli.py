@@ -9,7 +9,8 @@ import time
 import traceback
 from pathlib import Path
 
-from sim.config.scenario import MISSING, ScenarioError, load_scenario
+from sim.config.scenario import load_scenario
+from sim.config.schema import ScenarioError
 from sim.determinism import is_command, pin
 from sim.experiments.results import ResultsError
 from sim.world.gl import resolve_gl_backend
@@ -90,11 +91,6 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _invalid_db(exc: ResultsError, key: str) -> ScenarioError:
-    """A ResultsError as the one-line error of invalid input."""
-    return ScenarioError(str(exc.path), key, MISSING, exc.accepted, problem=exc.found)
-
-
 def sweep(args: argparse.Namespace) -> int:
     from sim.config.sweep import load_sweep
 
@@ -115,9 +111,9 @@ def sweep(args: argparse.Namespace) -> int:
             with Results(args.db) as results:  # checks the file, writes nothing yet
                 refused = results.refusal(spec.describe(), args.resume)
         except ResultsError as exc:
-            raise _invalid_db(exc, "--db") from None
+            raise exc.given_as("--db") from None
         if refused is not None:
-            raise _invalid_db(refused, "--db")
+            raise refused.given_as("--db")
     if args.scheduler:
         from sim.experiments.runner import scheduler_problem
 
@@ -132,7 +128,7 @@ def sweep(args: argparse.Namespace) -> int:
     try:
         done = run_sweep(spec, args.db, args.workers, args.scheduler, args.resume)
     except ResultsError as exc:
-        raise _invalid_db(exc, "--db") from None
+        raise exc.given_as("--db") from None
     _log(f"{done.ran} trial(s) run in {done.seconds:.0f} s, {done.already} found done; "
          f"{done.already + done.ran} of {done.total} in {args.db}")
     return EXIT_OK
@@ -143,14 +139,13 @@ def report(args: argparse.Namespace) -> int:
 
     if not args.db.is_file():
         found = "a directory" if args.db.is_dir() else "no such file"
-        raise ScenarioError(str(args.db), "<file>", MISSING, "a results database file",
-                            problem=found)
+        raise ResultsError(args.db, found, "a results database file", "<file>")
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         raise ScenarioError("--out", "out", str(args.out), "a directory (this is a file)")
     try:
         out = tables(args.db, args.out)  # reads the database only
     except ResultsError as exc:
-        raise _invalid_db(exc, "<file>") from None
+        raise exc.given_as("<file>") from None
     print(out["markdown"], end="")
     _log("wrote " + ", ".join(str(p) for p in out["paths"].values()))
     return EXIT_OK
@@ -182,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
             return report(args)
         if args.command == "figure7":
             return figure7(args)
-    except ScenarioError as exc:
+    except (ScenarioError, ResultsError) as exc:  # invalid input: a scenario, sweep or database
         print(f"taskcam: error: {exc}", file=sys.stderr)
         return EXIT_INVALID
     except KeyboardInterrupt:

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sim.determinism import PINS, late_imports, pin, started_pinned
+from sim.determinism import PINS, is_command, late_imports, pin, started_pinned
 from sim.world.gl import resolve_gl_backend
 
 # Two hinged links over a floor, lit, seen by a camera: libm (MuJoCo's kinematics) and
@@ -150,8 +150,8 @@ def settings() -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> int:
+    pin(restart=is_command())  # started unpinned: again, pinned (glibc reads it at start)
     if argv:
-        pin()
         resolve_gl_backend()  # the program it starts (a Dask worker, say) renders
         os.execvp(argv[0], argv)
     print(json.dumps({"settings": settings(), "fingerprints": fingerprints()}, indent=2))

@@ -30,10 +30,12 @@ ROOT = Path(__file__).resolve().parent.parent
 TASKCAM = Path(sys.executable).parent / "taskcam"
 
 
-def run_taskcam(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    """The installed console script, as a user runs it."""
+def run_taskcam(*args: str, cwd: Path | None = None,
+                env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """The installed console script, as a user runs it (in ``env``: default, this
+    process's environment)."""
     return subprocess.run([str(TASKCAM), *args], capture_output=True, text=True,
-                          cwd=cwd, timeout=600)
+                          cwd=cwd, env=env, timeout=600)
 
 
 @pytest.fixture(scope="session")

@@ -21,25 +21,27 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import pytest
 from conftest import run_taskcam
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from calibration import CalibrationError
+from calibration.pose import DegenerateGeometryError, estimate_pose
+from mapping import MappingError, SensorModel, StereoSettings
+from placement import DetectorLimits, PlacementError
 from sim.cli import main
 from sim.config.scenario import (
     SCENARIO_DIR,
     ObstacleConfig,
     Scenario,
-    ScenarioError,
-    _build,
-    _convert,
     load_scenario,
-    one_line,
     parse_scenario,
 )
+from sim.config.schema import ScenarioError, build, convert, one_line
 from sim.config.sweep import GENERATED, SweepConfig, load_sweep
-from sim.experiments.results import Results
+from sim.experiments.results import Results, ResultsError
 from sim.world.scene import build_scene
 
 SMOKE = (SCENARIO_DIR / "smoke.toml").read_text()
@@ -163,6 +165,7 @@ def test_sweep_and_report_leave_a_foreign_file_as_it_was(tmp_path, kind):
         Results(path)  # the library refuses it too
 
 
+@pytest.mark.slow
 def test_a_sweep_on_a_scheduler_nobody_runs_exits_2_before_touching_anything(tmp_path):
     spec, db = tmp_path / "smoke.toml", tmp_path / "out" / "r.sqlite"
     spec.write_text(SMOKE)
@@ -353,6 +356,24 @@ def test_configs_made_in_code_are_checked_too():
     assert error.value.key == "robots.bases"
 
 
+def test_each_package_has_one_error_type_naming_the_value_and_what_is_accepted(tmp_path):
+    for error in (MappingError, PlacementError, CalibrationError, ScenarioError, ResultsError):
+        assert issubclass(error, ValueError)  # callers' ``except ValueError`` still hold
+    assert issubclass(DegenerateGeometryError, CalibrationError)
+    with pytest.raises(MappingError, match=r"num_disparities 24: a positive multiple of 16"):
+        StereoSettings(num_disparities=24)
+    with pytest.raises(MappingError, match=r"clamp_min < miss < 0.5 < hit.*hit=0.4"):
+        SensorModel(hit=0.4)
+    with pytest.raises(PlacementError, match=r"max_off_normal_deg 95: degrees in \(0, 90\)"):
+        DetectorLimits(max_off_normal_deg=95)
+    points = np.eye(3)
+    with pytest.raises(CalibrationError, match="'ransac'; one of linear, kabsch, sqpnp"):
+        estimate_pose(points, points, points[:, :2], np.eye(3), method="ransac")
+    with Results(tmp_path / "r.sqlite") as results, \
+            pytest.raises(ResultsError, match="no table 'runs'; accepted: trials, outcomes"):
+        results.rows("runs")
+
+
 # ------------------------------------------------------------------ schema fuzz
 
 
@@ -504,7 +525,7 @@ def invalid(site: Site) -> st.SearchStrategy[tuple[dict, str]]:
     check = f.metadata.get("check")
     if check is not None:
         options.append(at(right_kind(tp).filter(
-            lambda v: not check[0](_convert(tp, v, key, "<fuzz>")))))
+            lambda v: not check[0](convert(tp, v, key, "<fuzz>")))))
     inner = optional_inner(tp)
     if inner is float:
         options.append(at(st.sampled_from([math.inf, -math.inf, math.nan])))
@@ -540,7 +561,7 @@ def test_the_fuzz_covers_the_schema_and_its_scaffolds_are_valid():
     for site in SCENARIO_SITES:
         parse_scenario(document(site, "-", 0, drop=True)[0])  # the scaffolding alone
     for site in SWEEP_SITES:
-        _build(SweepConfig, document(site, "-", 0, drop=True)[0], "", "<fuzz>")
+        build(SweepConfig, document(site, "-", 0, drop=True)[0], "", "<fuzz>")
 
 
 def toml(value: Any) -> str:

@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from calibration import detect_holes, disk_template, locate_hole, log_response, to_gray
+from calibration.target_frame import projected_disk
 from mapping import Pinhole, opencv_pose, world_to_camera
 from sim.config.scenario import load_scenario
-from sim.stages.target_frame import projected_disk
 from sim.world.ik import solve_camera_pose
 from sim.world.render import Renderer, camera_pinhole, camera_pose
 from sim.world.scene import build_scene

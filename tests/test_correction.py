@@ -14,8 +14,9 @@ from rerun.chunk import RrdReader
 from calibration.pose import rotation_deg
 from calibration.tracking import FeatureFinder, TrackerSettings
 from sim.config.scenario import load_scenario
-from sim.stages.correction import PoseCorrector
-from sim.stages.episode import new_grid, pose_error
+from sim.stages.corrector import PoseCorrector
+from sim.stages.placement_result import pose_error
+from sim.stages.world import new_grid
 from sim.world.ik import solve_camera_pose
 from sim.world.render import Renderer, camera_pinhole, camera_pose
 from sim.world.scene import build_scene
@@ -74,6 +75,7 @@ def _goal(scene, robot, qpos, offset):
         robot.qpos_adr]
 
 
+@pytest.mark.slow
 def test_corrector_recovers_a_camera_whose_joints_erred_along_a_rendered_move(scene):
     """Kinematic move (no physics): the world's joints drift from the commanded ones by
     up to 0.8 degrees each and the base by 3 cm (the issue's case: at least 2 cm and 1
@@ -137,6 +139,7 @@ def test_rotation_between_poses_by_hand():
     assert rotation_deg(b, b) == 0.0
 
 
+@pytest.mark.slow
 def test_episode_reports_the_correction_against_the_truth(default_run):
     out, summary = default_run
     for robot in summary["robots"]:
@@ -156,6 +159,7 @@ def test_episode_reports_the_correction_against_the_truth(default_run):
         assert f"/world/{name}/corrected_camera" in paths
 
 
+@pytest.mark.slow
 def test_targets_are_triangulated_into_a_common_frame(default_run):
     _, summary = default_run
     frame = summary["target_frame"]

@@ -1,5 +1,5 @@
-"""One source of truth for defaults: the README's scenario table, the code's schema and
-the shipped scenario and sweep files agree."""
+"""One source of truth for defaults: the scenario table of docs/scenario.md, the code's
+schema and the shipped scenario and sweep files agree."""
 
 from __future__ import annotations
 
@@ -17,13 +17,14 @@ from sim.config.scenario import (
     SCENARIO_DIR,
     SENSOR_DEFAULTS,
     Scenario,
-    _convert,
     load_scenario,
     parse_scenario,
 )
+from sim.config.schema import convert
 from sim.config.sweep import load_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
+TABLE = ROOT / "docs" / "scenario.md"  # its section "## Keys"
 SHIPPED = sorted(SCENARIO_DIR.glob("*.toml"))
 SWEEPS = [p for p in SHIPPED if "scenario" in tomllib.loads(p.read_text())]
 SCENARIOS = [p for p in SHIPPED if p not in SWEEPS]
@@ -63,12 +64,13 @@ def required(f: dataclasses.Field) -> bool:
         f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
 
 
-def readme_table() -> list[tuple[list[str], list[str], str]]:
-    """The README's scenario table: per row, the keys (``camera.fovy_deg``,
+def key_table() -> list[tuple[list[str], list[str], str]]:
+    """The scenario table (docs/scenario.md, "## Keys"): per row, the keys (``camera.fovy_deg``,
     ``obstacles[].size``), the defaults as written (one per key), the meaning."""
-    text = (ROOT / "README.md").read_text()
-    section = text[text.index("## Scenario format"):]
-    section = section[:section.index("\n## ", 5)]
+    text = TABLE.read_text()
+    section = text[text.index("\n## Keys\n") + 1:]
+    end = section.find("\n## ", 5)
+    section = section if end < 0 else section[:end]
     rows = []
     for line in section.splitlines():
         if not line.startswith("| `"):
@@ -128,38 +130,38 @@ PROSE = {
 }
 
 
-def test_every_key_of_the_schema_is_in_the_readme_table_and_no_other():
-    in_table = [k for keys, _, _ in readme_table() for k in keys]
+def test_every_key_of_the_schema_is_in_the_key_table_and_no_other():
+    in_table = [k for keys, _, _ in key_table() for k in keys]
     assert len(in_table) == len(set(in_table)), "a key listed twice"
     assert sorted(in_table) == sorted(schema()), (
-        f"not in the README: {sorted(set(schema()) - set(in_table))}; "
+        f"not in docs/scenario.md: {sorted(set(schema()) - set(in_table))}; "
         f"not in the code: {sorted(set(in_table) - set(schema()))}")
 
 
-def test_every_default_in_the_readme_table_is_the_codes():
+def test_every_default_in_the_key_table_is_the_codes():
     """A default written as a TOML literal must, read by the scenario parser itself, equal
     the dataclass field's default; one written in words must be one the test knows and
     match what it says; "required" must be a key files have to state."""
-    for keys, defaults, _ in readme_table():
+    for keys, defaults, _ in key_table():
         for key, written in zip(keys, defaults, strict=True):
             owner, f = schema()[key]
             if written == "required":
-                assert required(f), f"{key}: the README says required; the code has a default"
+                assert required(f), f"{key}: docs/scenario.md says required; the code has a default"
                 continue
-            assert not required(f), f"{key} is required in files; the README gives a default"
+            assert not required(f), f"{key} is required in files; docs/scenario.md gives a default"
             if written.startswith("`"):
                 hint = typing.get_type_hints(owner)[f.name]
-                stated = _convert(hint, parse_literal(written[1:-1]), key, "README.md")
+                stated = convert(hint, parse_literal(written[1:-1]), key, "docs/scenario.md")
                 assert stated == default_of(f), (
-                    f"{key}: README says {written}, the code {default_of(f)!r}")
+                    f"{key}: docs/scenario.md says {written}, the code {default_of(f)!r}")
             else:
                 check = PROSE.get((key, written))
                 assert check is not None, f"{key}: {written!r} is neither `literal` nor known"
                 assert check(default_of(f)), f"{key}: {default_of(f)!r} is not {written!r}"
 
 
-def test_the_sensor_models_in_the_readme_are_the_codes():
-    meaning = next(m for keys, _, m in readme_table() if "grid.hit" in keys)
+def test_the_sensor_models_in_the_docs_are_the_codes():
+    meaning = next(m for keys, _, m in key_table() if "grid.hit" in keys)
     stated = {src: tuple(float(v) for v in vals.split(" / ")) for src, vals in
               re.findall(r"`(\w+)` ([\d.]+(?: / [\d.]+){3})", meaning)}
     assert stated == SENSOR_DEFAULTS
@@ -193,10 +195,10 @@ def test_a_shipped_sweep_parses(path):
 
 
 def declared() -> dict[str, dict[str, Any]]:
-    """What the README's table says a shipped file sets: file -> key -> value, from
+    """What the scenario table says a shipped file sets: file -> key -> value, from
     phrases like "`default.toml` sets `0.5`, `0.05`" (one value per key of the row)."""
     out: dict[str, dict[str, Any]] = {}
-    for keys, _, meaning in readme_table():
+    for keys, _, meaning in key_table():
         for name, values in re.findall(r"`([\w-]+\.toml)` sets ((?:`[^`]*`(?:, )?)+)", meaning):
             literals = re.findall(r"`([^`]*)`", values)
             assert len(literals) == len(keys), f"one value per key: {meaning}"
@@ -205,7 +207,7 @@ def declared() -> dict[str, dict[str, Any]]:
     return out
 
 
-def test_what_the_readme_says_a_shipped_file_sets_is_what_it_sets():
+def test_what_the_docs_say_a_shipped_file_sets_is_what_it_sets():
     said = declared()
     assert set(said) <= {p.name for p in SHIPPED}
     for name, values in said.items():
@@ -218,7 +220,7 @@ def test_what_the_readme_says_a_shipped_file_sets_is_what_it_sets():
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
 def test_a_shipped_scenario_restates_defaults_truly(path):
     """A shipped scenario may restate a setting, as a reader's reference; it then must be
-    the code's default, or a departure the README's table declares ("`default.toml`
+    the code's default, or a departure the scenario table declares ("`default.toml`
     sets ...", checked above). So a default that moves in the code (or a value that moves
     in the file) fails here instead of silently splitting scenarios that state the key
     from those that leave it out, as ``mapping.entropy_threshold_bits`` did (0.12 in
@@ -232,4 +234,4 @@ def test_a_shipped_scenario_restates_defaults_truly(path):
         f = schema()[key][1]
         assert value_at(s, key) == default_of(f), (
             f"{path.name} sets {key} = {value_at(s, key)!r}, the code's default is "
-            f"{default_of(f)!r}: make them agree, or declare the departure in the README")
+            f"{default_of(f)!r}: make them agree, or declare the departure in docs/scenario.md")

@@ -15,11 +15,11 @@ import pytest
 import mujoco
 from scipy.spatial.transform import Rotation
 
+from calibration.target_frame import projected_disk, sight
 from mapping import opencv_pose
 from placement import CameraModel, DetectorLimits, TargetModel, detectable
 from placement.detectability import focal_px, projected_radius, worst_partner
 from sim.config.scenario import load_scenario
-from sim.stages.target_frame import projected_disk, sight
 from sim.world.optics import Lens, defocus
 from sim.world.render import Renderer, camera_pinhole, camera_pose
 from sim.world.scene import build_scene

@@ -10,13 +10,15 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from calibration.targets import Target
 from mapping import Pinhole, opencv_pose, world_to_camera
 from placement import Region, Weights, search
 from sim.config.scenario import SCENARIO_DIR, load_scenario
-from sim.stages.episode import Episode, target_model
+from sim.stages.episode import Episode
+from sim.stages.rating_problem import camera_model, target_model
 from sim.world.collision import clearance
 from sim.world.render import Renderer
-from sim.world.scene import Target, save_scene
+from sim.world.scene import save_scene
 
 
 def _final(out):
@@ -27,6 +29,7 @@ def _final(out):
     return model, data
 
 
+@pytest.mark.slow
 def test_writes_the_three_files(default_run):
     out, summary = default_run
     for name in ("summary.json", "scene.xml", "look.xml", "run.rrd"):
@@ -36,6 +39,7 @@ def test_writes_the_three_files(default_run):
     assert set(summary["mapping"]["views"]) == {"r1", "r2"}
 
 
+@pytest.mark.slow
 def test_every_robot_sees_its_target(default_run):
     _, summary = default_run
     for robot in summary["robots"]:
@@ -50,6 +54,7 @@ def test_every_robot_sees_its_target(default_run):
         assert terms["free"] > 0.95  # placed in known-free space (P < 0.05)
 
 
+@pytest.mark.slow
 def test_the_primary_target_is_viewed_when_nothing_hides_it(default_run):
     """The first instance of the Figure 7 switch in 3-D: here the primary wins for at
     least one robot (scenarios/figure7.toml hides it and both view the secondary)."""
@@ -58,6 +63,7 @@ def test_the_primary_target_is_viewed_when_nothing_hides_it(default_run):
 
 
 @pytest.mark.parametrize("count", [3, 4])
+@pytest.mark.slow
 def test_three_and_four_robots_place_and_see(count, tmp_path):
     from sim.cli import main
 
@@ -85,6 +91,7 @@ def test_three_and_four_robots_place_and_see(count, tmp_path):
         assert len(owners) == 1 or not any(o in robots for o in owners), names
 
 
+@pytest.mark.slow
 def test_reported_pose_matches_the_named_camera_in_scene_xml(default_run):
     out, summary = default_run
     _, data = _final(out)
@@ -97,6 +104,7 @@ def test_reported_pose_matches_the_named_camera_in_scene_xml(default_run):
         assert math.degrees(2 * math.acos(min(1.0, dot))) < 0.5
 
 
+@pytest.mark.slow
 def test_target_is_in_the_image_with_nothing_in_the_way(default_run):
     out, summary = default_run
     model, data = _final(out)
@@ -124,6 +132,7 @@ def test_target_is_in_the_image_with_nothing_in_the_way(default_run):
                 f"{robot['name']}: ray to the rim meets {model.geom(geomid[0]).name}"
 
 
+@pytest.mark.slow
 def test_robots_keep_clear_of_each_other_and_the_scene(default_run):
     out, summary = default_run
     model, data = _final(out)
@@ -147,12 +156,14 @@ def _without_times(summary):
     return summary
 
 
+@pytest.mark.slow
 def test_same_seed_same_summary(default_run):
     _, summary = default_run
     again, _ = Episode(load_scenario()).run()
     assert _without_times(json.loads(json.dumps(again))) == _without_times(summary)
 
 
+@pytest.mark.slow
 def test_recording_has_the_cameras_grid_and_ratings(default_run):
     out, _ = default_run
     paths = set(RrdReader(out / "run.rrd").store().schema().entity_paths())
@@ -162,6 +173,7 @@ def test_recording_has_the_cameras_grid_and_ratings(default_run):
         assert path in paths, sorted(paths)
 
 
+@pytest.mark.slow
 def test_unknown_voxels_are_recorded_on_request(tmp_path):
     from sim.cli import main
 
@@ -172,23 +184,24 @@ def test_unknown_voxels_are_recorded_on_request(tmp_path):
     assert "/world/grid/unknown" in paths
 
 
+@pytest.mark.slow
 def test_default_scenario_punishes_ignoring_occlusion():
     """Rated with TFV ignored (gamma = 0), the best view of the primary target is blocked
     by the scene's geometry: the default scenario is a real test of occlusion handling."""
     episode = Episode(load_scenario())
     with Renderer(episode.model, episode.pinhole.width, episode.pinhole.height) as renderer:
         episode.map(renderer)
-    s = episode.s
-    primary = episode.scene.primary
-    field = search(episode.grid, [target_model(primary)], episode.camera_model,
+    s, world = episode.scenario, episode.world
+    primary = world.scene.primary
+    field = search(world.grid, [target_model(primary)], camera_model(s),
                    Weights(gamma=0.0), s.rating.free_threshold, Region(*s.search.camera_z_m))
     best = field.ratings.positions[field.ranked()[0]]
     vec = primary.position + 0.001 * primary.normal - best
     geomid = np.zeros(1, np.int32)
-    dist = mujoco.mj_ray(episode.model, episode.data, best, vec / np.linalg.norm(vec), None, 1,
+    dist = mujoco.mj_ray(world.model, world.data, best, vec / np.linalg.norm(vec), None, 1,
                          -1, geomid)
     assert geomid[0] >= 0 and dist < np.linalg.norm(vec) - 0.01
-    assert episode.model.geom(geomid[0]).name.startswith("obstacle")
+    assert world.model.geom(geomid[0]).name.startswith("obstacle")
 
 
 def test_a_misplaced_workpiece_moves_in_the_world_only(tmp_path):
@@ -200,7 +213,7 @@ def test_a_misplaced_workpiece_moves_in_the_world_only(tmp_path):
     base = load_scenario()
     s = dataclasses.replace(base, workpiece=dataclasses.replace(
         base.workpiece, yaw_deg=30.0, position_error_m=0.02, yaw_error_deg=3.0))
-    e = Episode(s)
+    e = Episode(s).world
     dx, dy, dyaw = e.workpiece_error
     assert 0 < math.hypot(dx, dy) < 0.1 and 0 < abs(dyaw) < math.radians(15)
     world, nominal = e.data, e.belief
@@ -212,7 +225,7 @@ def test_a_misplaced_workpiece_moves_in_the_world_only(tmp_path):
         believed = nominal.site(site).xpos
         expected = centre + rot @ (believed - centre) + [dx, dy, 0.0]
         assert np.allclose(world.site(site).xpos, expected, atol=1e-9)
-    xml, files = e.scene.to_xml({"final": e.world_state()}, e.world_bodies())
+    xml, files = e.to_xml("final")
     saved = mujoco.MjModel.from_xml_path(str(save_scene(tmp_path, xml, files)))
     data = mujoco.MjData(saved)
     mujoco.mj_forward(saved, data)

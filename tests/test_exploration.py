@@ -39,14 +39,15 @@ def test_region_entropy_never_rises_over_an_exploration(seed):
     assert len(history) == summary["views_total"] + 1
     assert all(b <= a for a, b in itertools.pairwise(history))
     assert history[0] == pytest.approx(1.0)  # nothing known before the first view
-    assert history[-1] == pytest.approx(mean_entropy(episode.grid, episode_interest(episode)))
+    assert history[-1] == pytest.approx(mean_entropy(episode.world.grid,
+                                                     episode_interest(episode)))
 
 
 def episode_interest(episode: Episode) -> np.ndarray:
     from mapping import region_mask
 
-    return region_mask(episode.grid, episode.scene.primary.position,
-                       np.array(episode.s.mapping.region_half_m))
+    return region_mask(episode.world.grid, episode.world.scene.primary.position,
+                       np.array(episode.scenario.mapping.region_half_m))
 
 
 def test_no_two_views_coincide(cooperative):

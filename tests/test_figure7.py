@@ -39,6 +39,7 @@ def test_the_occluder_in_front_blocks_the_primary_views():
     assert in_front.any() and np.all(field.ratings.tfv[in_front] == 0)
 
 
+@pytest.mark.slow
 def test_the_same_switch_in_the_3d_pipeline(tmp_path):
     out = tmp_path / "run"
     assert main(["run", str(SCENARIO_DIR / "figure7.toml"), "--out", str(out),

@@ -58,6 +58,7 @@ def within_limits(model, joints: np.ndarray, adr: np.ndarray) -> bool:
     return bool(np.all(inside[..., limited]))
 
 
+@pytest.mark.slow
 def test_100_random_two_robot_scenes_move_without_collision():
     rng = np.random.default_rng(2024)
     moved = refused = 0
@@ -125,6 +126,7 @@ def _moves(scene, cfg: MotionConfig, count: int, seed: int = 7):
     return np.array(joint_errors), np.array(tilts), errors.offsets[robot.name]
 
 
+@pytest.mark.slow
 def test_achieved_minus_commanded_matches_the_configured_errors(default_scene):
     cfg = MotionConfig(settle_s=1.5, joint_offset_deg=0.5, joint_noise_deg=0.1,
                        base_offset_m=0.02, base_yaw_deg=0.8, suspension_deg=1.0)
@@ -145,6 +147,7 @@ def test_achieved_minus_commanded_matches_the_configured_errors(default_scene):
     assert np.abs(perfect).max() < 1e-3
 
 
+@pytest.mark.slow
 def test_motion_is_recorded_on_the_simulated_timeline(default_run):
     out, summary = default_run
     schema = RrdReader(out / "run.rrd").store().schema()

@@ -39,6 +39,7 @@ from sim.cli import main
 from sim.config.scenario import SCENARIO_DIR
 from sim.experiments.results import Results
 
+pytestmark = pytest.mark.slow  # the regression sweep: about ten minutes on 2 cores
 EASY, MEDIUM, HARD = 0.2, 0.1, 0.01
 TRIALS = 24  # paired scenes per density (scenarios/regression.toml)
 

@@ -125,6 +125,7 @@ def stored(part: str) -> Any:
 REGENERATE = "python tests/test_reproducibility.py --regenerate"
 
 
+@pytest.mark.slow
 def test_a_sweeps_task_outcomes_equal_the_stored_ones(tmp_path):
     stored_outcomes = stored("outcomes")
     got = outcomes(tmp_path)
@@ -173,6 +174,7 @@ def test_this_test_session_is_pinned():
     assert_pinned(settings())
 
 
+@pytest.mark.slow
 def test_sweep_workers_are_pinned():
     for workers in (1, 2):
         with worker_pool(workers) as pool:
@@ -191,6 +193,7 @@ def test_a_program_that_loads_numpy_first_is_not_trusted_with_trials():
 
 
 @pytest.mark.parametrize("pinned", [True, False])
+@pytest.mark.slow
 def test_dask_workers_must_start_pinned(tmp_path, pinned):
     from distributed import LocalCluster
 

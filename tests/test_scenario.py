@@ -12,11 +12,18 @@ from hypothesis import strategies as st
 from sim.cli import main
 from sim.config.scenario import (
     DEFAULT_SCENARIO,
+    BasePose,
+    CameraConfig,
+    MappingConfig,
+    ObstacleConfig,
     Scenario,
-    ScenarioError,
+    TargetConfig,
+    WorkpieceConfig,
     load_scenario,
     parse_scenario,
 )
+from sim.config.schema import ScenarioError
+from sim.config.sweep import MethodConfig, Sweep, SweepConfig
 
 
 def test_default_file_parses_and_is_frozen():
@@ -27,8 +34,83 @@ def test_default_file_parses_and_is_frozen():
         s.seed = 3  # type: ignore[misc]
 
 
-def test_empty_table_gives_the_dataclass_defaults():
-    assert parse_scenario({}) == dataclasses.replace(Scenario(), source="<string>")
+# (table of the scenario, its config class, field, a bad value as Python holds it, the
+# same value as a file writes it): a wrong type, a failed check, or a table's cross-check
+INVALID = [
+    ("camera", CameraConfig, "width", 8, 8),
+    ("camera", CameraConfig, "width", "wide", "wide"),
+    ("camera", CameraConfig, "fovy_deg", math.nan, math.nan),
+    ("camera", CameraConfig, "samples", True, True),
+    ("mapping", MappingConfig, "depth_source", "sonar", "sonar"),
+    ("mapping", MappingConfig, "region_half_m", (0.8, 0.8), [0.8, 0.8]),
+    ("workpiece", WorkpieceConfig, "targets", (), []),
+    ("workpiece", WorkpieceConfig, "targets", (TargetConfig("a"), TargetConfig("b")),
+     [{"name": "a"}, {"name": "b"}]),
+    ("workpiece", WorkpieceConfig, "position", [0.0, 0.0], None),  # a list is not a tuple
+]
+
+
+@pytest.mark.parametrize(("table", "cls", "key", "value", "written"), INVALID,
+                         ids=[f"{c[0]}.{c[2]}={c[3]!r}" for c in INVALID])
+def test_an_invalid_value_is_refused_every_way_a_scenario_is_built(table, cls, key, value,
+                                                                   written):
+    with pytest.raises(ScenarioError) as made:  # built in code
+        cls(**{key: value})
+    assert made.value.key == key and made.value.source == f"<{cls.__name__}>"
+    with pytest.raises(ScenarioError) as replaced:  # replaced in a valid one, then nested
+        dataclasses.replace(Scenario(), **{table: dataclasses.replace(cls(), **{key: value})})
+    assert replaced.value.key == key
+    if written is not None:  # read from a file: the key in full
+        with pytest.raises(ScenarioError) as parsed:
+            parse_scenario({table: {key: written}}, "bad.toml")
+        assert parsed.value.key == f"{table}.{key}" and parsed.value.source == "bad.toml"
+
+
+def test_a_wrong_type_in_a_nested_table_or_list_is_refused():
+    with pytest.raises(ScenarioError) as error:
+        Scenario(camera=MappingConfig())  # type: ignore[arg-type]
+    assert error.value.key == "camera" and "fovy_deg" in error.value.accepted
+    with pytest.raises(ScenarioError) as error:
+        Scenario(obstacles=({"shape": "box"},))  # type: ignore[arg-type]
+    assert error.value.key == "obstacles"
+    with pytest.raises(ScenarioError) as error:
+        BasePose(1.0, math.inf)
+    assert error.value.key == "y"
+
+
+def test_an_obstacle_checks_its_size_against_its_shape():
+    assert ObstacleConfig("cylinder", size=(0.1, 0.3)).size == (0.1, 0.3)
+    with pytest.raises(ScenarioError) as error:
+        ObstacleConfig("box", size=(0.1, 0.3))
+    assert error.value.key == "size" and "3 numbers for a box" in str(error.value)
+
+
+def test_a_cross_field_check_runs_on_replace_and_names_both_keys():
+    s = load_scenario()
+    with pytest.raises(ScenarioError) as error:  # within a table
+        dataclasses.replace(s, camera=dataclasses.replace(s.camera, near_m=2.0))
+    assert error.value.key == "near_m" and "far_m (1.5)" in error.value.accepted
+    with pytest.raises(ScenarioError) as error:  # across tables
+        dataclasses.replace(s, grid=dataclasses.replace(s.grid, miss=0.001))
+    assert error.value.key == "grid.miss" and "grid.clamp_min" in error.value.accepted
+    assert error.value.source == str(DEFAULT_SCENARIO)
+
+
+def test_the_sweep_configs_check_themselves():
+    with pytest.raises(ScenarioError) as error:
+        MethodConfig("best", "best_view")  # type: ignore[arg-type]
+    assert error.value.key == "placement"
+    with pytest.raises(ScenarioError) as error:
+        dataclasses.replace(SweepConfig(), densities=(0.2, 0.2))
+    assert error.value.key == "densities"
+    with pytest.raises(ScenarioError) as error:
+        SweepConfig(methods=(MethodConfig("a"), MethodConfig("a")))
+    assert error.value.key == "methods"
+    with pytest.raises(ScenarioError) as error:  # a sweep judges the task
+        Sweep(SweepConfig(), Scenario(), "sweep.toml")
+    assert error.value.key == "task.enabled"
+    judged = Scenario(task=dataclasses.replace(Scenario().task, enabled=True))
+    assert Sweep(SweepConfig(), judged, "sweep.toml").scenario is judged
 
 
 def test_seed_override():

@@ -16,8 +16,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sim.config.scenario import ScenarioError, parse_scenario
-from sim.experiments.audit import CORRECTION_TOL_M, POSE_TOL_DEG, POSE_TOL_M, Audit, audit_run
+from sim.config.scenario import parse_scenario
+from sim.config.schema import ScenarioError
+from sim.experiments.audit import audit_run
+from sim.experiments.audit_findings import Audit
+from sim.experiments.audit_robot import CORRECTION_TOL_M, POSE_TOL_DEG, POSE_TOL_M
 from sim.experiments.random_scenario import draw_scenario, is_heavy, to_toml
 from sim.experiments.soak import Job, discard_reason, run_file, run_scenes, tally
 from sim.world.scene import build_scene
@@ -44,12 +47,14 @@ def _findings(records: list[dict[str, Any]]) -> list[str]:
             for f in r["findings"]]
 
 
+@pytest.mark.slow
 def test_soak_scenes_tell_the_truth(soak: list[dict[str, Any]]) -> None:
     findings = _findings([r for r in soak if r["index"] is not None])
     assert not findings, "\n".join(findings)
 
 
 @pytest.mark.parametrize("name", [p.name for p in FOUND])
+@pytest.mark.slow
 def test_scenes_the_soak_found_failing_tell_the_truth(soak: list[dict[str, Any]],
                                                       name: str) -> None:
     (record,) = [r for r in soak if r.get("file") == name]
@@ -58,6 +63,7 @@ def test_scenes_the_soak_found_failing_tell_the_truth(soak: list[dict[str, Any]]
     assert not findings, "\n".join(findings)
 
 
+@pytest.mark.slow
 def test_soak_checks_every_part(soak: list[dict[str, Any]]) -> None:
     """The soak ran what it claims and its checks had something to check (the found
     scenes included: two of them re-place cameras during the task)."""

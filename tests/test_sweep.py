@@ -50,6 +50,7 @@ def reference(tiny) -> dict[str, list[tuple]]:
     return rows(db)
 
 
+@pytest.mark.slow
 def test_the_reference_rows_are_complete(reference):
     assert [(r[0], r[1]) for r in reference["trials"]] == [(0, 0), (0, 1), (1, 0), (1, 1)]
     assert len(reference["outcomes"]) == 4 * 2
@@ -59,6 +60,7 @@ def test_the_reference_rows_are_complete(reference):
         assert obstacles >= 1
 
 
+@pytest.mark.slow
 def test_kill_9_then_resume_gives_the_rows_of_an_uninterrupted_run(tiny, reference, tmp_path):
     db = tmp_path / "killed.sqlite"
     cmd = [sys.executable, "-m", "sim.cli", "sweep", str(tiny), "--db", str(db),
@@ -91,12 +93,14 @@ def test_kill_9_then_resume_gives_the_rows_of_an_uninterrupted_run(tiny, referen
     assert rows(db) == reference
 
 
+@pytest.mark.slow
 def test_two_workers_give_the_same_rows(tiny, reference, tmp_path):
     db = tmp_path / "two.sqlite"
     assert main(["sweep", str(tiny), "--db", str(db), "--workers", "2"]) == 0
     assert rows(db) == reference
 
 
+@pytest.mark.slow
 def test_a_dask_cluster_gives_the_same_rows(tiny, reference, tmp_path):
     from distributed import LocalCluster
 
@@ -108,6 +112,7 @@ def test_a_dask_cluster_gives_the_same_rows(tiny, reference, tmp_path):
     assert rows(db) == reference
 
 
+@pytest.mark.slow
 def test_a_trial_pairs_its_methods_whatever_their_order(tiny):
     """Each method starts from the same mapped scene with its own random stream: run
     alone, or after another, it does the same."""
@@ -143,6 +148,7 @@ def test_a_bad_sweep_file_exits_2_naming_the_key(tiny, tmp_path, capsys, edit, k
     assert not db.exists()  # nothing started, nothing written
 
 
+@pytest.mark.slow
 def test_a_database_of_another_sweep_is_refused(tiny, reference, tmp_path, capsys):
     db = tmp_path / "other.sqlite"
     with Results(db) as r:
@@ -166,6 +172,7 @@ def test_wilson_interval_matches_hand_calculation():
             assert 0.0 <= lo <= k / n <= hi <= 1.0
 
 
+@pytest.mark.slow
 def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
     db = tmp_path / "report.sqlite"
     shutil.copy(tiny.parent / "reference.sqlite", db)

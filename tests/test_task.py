@@ -12,21 +12,21 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from calibration.panel import panel_mask
 from mapping import Pinhole, voxels_of
 from sim.config.scenario import ObstacleConfig, Scenario, load_scenario
 from sim.experiments.audit import audit_run
-from sim.stages.episode import new_grid
 from sim.stages.record import Recorder
 from sim.stages.task import (
     BLUR_MARGIN_PX,
     MIN_POINTS,
-    Camera,
     InsertionTask,
-    TaskResult,
+    Replacement,
     _measuring_window,
-    panel_mask,
     panel_model,
 )
+from sim.stages.task_result import Camera, TaskResult
+from sim.stages.world import new_grid
 from sim.world.ik import solve_camera_pose
 from sim.world.optics import Lens
 from sim.world.render import Renderer, camera_pinhole, camera_pose
@@ -83,9 +83,9 @@ def test_the_same_camera_behind_an_occluder_fails_and_says_why():
                           yaw_deg=63.0)  # across the sight line, 30 cm from the slot
     asked = []
 
-    def replace(cam, step):  # the episode would search and move again; here: stay
+    def replace(cam, step, lost):  # the episode would search and move again; here: stay
         asked.append(step)
-        return {"step": step, "robot": cam.robot.name, "placed": False}
+        return Replacement({"step": step, "robot": cam.robot.name, "placed": False}, None)
 
     result, _ = run_task((wall,), replace=replace)
     assert asked == [load_scenario().task.lost_limit - 1]  # once, when the limit was hit
@@ -98,9 +98,8 @@ def test_the_same_camera_behind_an_occluder_fails_and_says_why():
 
 
 def test_success_flags_are_consistent():
-    r = TaskResult(0.2, (0.2, 0.1, 0.01))
     for error in (0.0005, 0.003, 0.03, 0.05):
-        r.final_displacement = np.array([error, 0.0, 0.0])
+        r = TaskResult(0.2, (0.2, 0.1, 0.01), final_displacement=np.array([error, 0.0, 0.0]))
         flags = r.success()
         assert flags == {"0.2": error <= 0.04, "0.1": error <= 0.02, "0.01": error <= 0.002}
         assert not flags["0.01"] or flags["0.1"]
@@ -113,6 +112,7 @@ def test_the_panel_model_comes_from_its_mjcf():
     assert np.allclose(model.halves, [[0.005, 0.1, 0.075]])
 
 
+@pytest.mark.slow
 def test_episode_reports_the_task(default_run):
     out, summary = default_run
     task = summary["task"]
@@ -127,6 +127,7 @@ def test_episode_reports_the_task(default_run):
     assert {"/world/panel/true", "/world/panel/measured", "/task/displacement_m"} <= paths
 
 
+@pytest.mark.slow
 def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_path):
     """The episode's own re-placement: r1's images are made to miss the panel three
     steps running; the rating function is searched again on the updated map, the robot

@@ -11,15 +11,15 @@ import cv2
 import numpy as np
 import pytest
 
+from calibration.target_frame import Sighting, common_frame, search_slack_px, sight
+from calibration.targets import Target
 from mapping import Pinhole
 from sim.config.scenario import load_scenario, parse_scenario
 from sim.stages.episode import Episode
-from sim.stages.target_frame import Sighting, common_frame, search_slack_px, sight
-from sim.world.scene import Target
 
 
 def _targets() -> tuple[Target, ...]:
-    return Episode(parse_scenario({"robots": {"count": 1}})).scene.targets
+    return Episode(parse_scenario({"robots": {"count": 1}})).world.scene.targets
 
 
 def test_the_target_frame_weighs_sightings_by_their_uncertainty():
@@ -50,6 +50,7 @@ def _enclosed(**overrides: dict) -> dict:
             "mapping": {"max_views": 2}, "obstacles": walls, **overrides}
 
 
+@pytest.mark.slow
 def test_a_target_nobody_located_is_not_a_success():
     """The paper's baseline ignores occlusion and places the cameras anyway; neither
     finds the hole, no target frame is measured, and the task is not attempted: it
@@ -66,6 +67,7 @@ def test_a_target_nobody_located_is_not_a_success():
     assert "primary target" in task["stopped_by"] and task["steps"] == 0
 
 
+@pytest.mark.slow
 def test_a_correction_that_cannot_locate_its_final_frame_says_so():
     """With fiducials looked for only 0.05 px from their predicted pixels no frame can be
     located once the positioning error has built up: each robot searches the final

@@ -32,16 +32,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from sim.config.scenario import (
-    SCENARIO_DIR,
-    Checked,
-    Scenario,
-    ScenarioError,
-    _build,
-    _check,
-    parse_scenario,
-    read_toml,
-)
+from sim.config.scenario import SCENARIO_DIR, Scenario, parse_scenario
+from sim.config.schema import Checked, ScenarioError, build, checked, read_toml
 
 Placement = Literal["rating", "biased_random", "information_gain"]
 
@@ -50,7 +42,7 @@ Placement = Literal["rating", "biased_random", "information_gain"]
 class MethodConfig(Checked):
     """A placement method, run on every scene of the sweep."""
 
-    name: str = _check(lambda v: v.replace("_", "").isalnum(), "letters, digits and _",
+    name: str = checked(lambda v: v.replace("_", "").isalnum(), "letters, digits and _",
                        "optimal")
     placement: Placement = "rating"
     secondary: bool = True  # may it place cameras for secondary targets, and use them?
@@ -68,23 +60,30 @@ def _paper_methods() -> tuple[MethodConfig, ...]:
 class SweepConfig(Checked):
     name: str = "sweep"
     scenario: str = "default.toml"  # the base scenario
-    seed: int = _check(lambda v: v >= 0, "an integer >= 0", 0)
-    trials: int = _check(lambda v: v >= 1, "an integer >= 1", 300)  # per density
-    densities: tuple[float, ...] = _check(
+    seed: int = checked(lambda v: v >= 0, "an integer >= 0", 0)
+    trials: int = checked(lambda v: v >= 1, "an integer >= 1", 300)  # per density
+    densities: tuple[float, ...] = checked(
         lambda v: len(v) >= 1 and all(0 <= d < 0.9 for d in v) and len(set(v)) == len(v),
         "a non-empty list of distinct fractions in [0, 0.9)", (0.05, 0.2, 0.35))
-    methods: tuple[MethodConfig, ...] = _check(
+    methods: tuple[MethodConfig, ...] = checked(
         lambda v: len(v) >= 1 and len({m.name for m in v}) == len(v),
         "a non-empty list of methods with unique names", default_factory=_paper_methods)
 
 
 @dataclass(frozen=True)
-class Sweep:
-    """A sweep file, read: its settings and the base scenario with the overrides."""
+class Sweep(Checked):
+    """A sweep file, read: its settings and the base scenario with the overrides (which
+    must run the task: a sweep judges it)."""
 
     config: SweepConfig
     scenario: Scenario
     source: str
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.scenario.task.enabled:
+            raise ScenarioError(self.scenario.source, "task.enabled", False,
+                                "true: a sweep judges the task")
 
     def trial_seed(self, density_index: int, trial: int) -> int:
         """The scenario seed of trial ``trial`` at density ``density_index``."""
@@ -126,7 +125,7 @@ def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
             raise ScenarioError(str(path), f"overrides.{key}", overrides[key],
                                 f"no override: {why}", problem="not overridable, with value")
     data.setdefault("name", path.stem)
-    config: SweepConfig = _build(SweepConfig, data, "", str(path))
+    config = build(SweepConfig, data, "", str(path))
     if trials is not None:
         if trials < 1:
             raise ScenarioError("--trials", "trials", trials, "an integer >= 1")
@@ -142,6 +141,4 @@ def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     parse_scenario(base, str(base_path))  # the base file's own errors name it
     source = f"{path} [overrides]"
     scenario = parse_scenario(_merge(base, {**overrides, "obstacles": []}), source)
-    if not scenario.task.enabled:
-        raise ScenarioError(source, "task.enabled", False, "true: a sweep judges the task")
     return Sweep(config, scenario, str(path))

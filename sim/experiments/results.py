@@ -50,9 +50,14 @@ class ResultsError(ValueError):
     """A file that is not a results database, or one that cannot take this sweep's
     results: ``found`` says what it is, ``accepted`` what would do."""
 
-    def __init__(self, path: Path, found: str, accepted: str) -> None:
-        self.path, self.found, self.accepted = path, found, accepted
-        super().__init__(f"{path}: {found}; accepted: {accepted}")
+    def __init__(self, path: Path, found: str, accepted: str, key: str | None = None) -> None:
+        self.path, self.found, self.accepted, self.key = path, found, accepted, key
+        named = "" if key is None else f"key '{key}': "
+        super().__init__(f"{path}: {named}{found}; accepted: {accepted}")
+
+    def given_as(self, key: str) -> ResultsError:
+        """The same error, naming the command-line argument that gave the file."""
+        return ResultsError(self.path, self.found, self.accepted, key)
 
 
 def _columns(db: sqlite3.Connection) -> dict[str, list[str]]:
@@ -227,7 +232,7 @@ class Results:
             return [(*row[:-1], _without_timings(json.loads(row[-1])))
                     for row in self.db.execute(query)]
         if table not in ("outcomes", "successes"):
-            raise ValueError(f"no table {table!r}; tables: trials, outcomes, successes")
+            raise ResultsError(self.path, f"no table {table!r}", "trials, outcomes, successes")
         return list(self.db.execute(f"SELECT * FROM {table} ORDER BY 1, 2, 3, 4"))
 
 

@@ -30,7 +30,8 @@ import numpy as np
 
 from sim.cli import main
 from sim.config.scenario import load_scenario
-from sim.experiments.audit import Finding, audit_run
+from sim.experiments.audit import audit_run
+from sim.experiments.audit_findings import Finding
 from sim.experiments.random_scenario import SIZES, draw_scenario, is_heavy, to_toml
 from sim.experiments.runner import _worker_init, one_thread_each
 

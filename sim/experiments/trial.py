@@ -7,7 +7,9 @@ every placement method run on it from the same start.
 3. Each method starts from the mapped state (the robots where mapping left them, the
    same map) with its own random stream, seeded by the trial and the method's name, so
    that its outcome does not depend on the other methods or their order. It places the
-   cameras (with the secondary targets or without), and the task is run with them.
+   cameras by its placement method (with the secondary targets or without), both given
+   to the stages as arguments, and the task is run with them. The methods' searches
+   share one rating problem over the map.
 
 The result is plain data (JSON types), one record per trial with one per method.
 """
@@ -28,7 +30,11 @@ import numpy as np
 from sim.config.scenario import Scenario
 from sim.config.sweep import MethodConfig
 from sim.experiments.generate import generate, keep_outs
-from sim.stages.episode import Episode
+from sim.stages.episode import place_look_do
+from sim.stages.exploration import explore
+from sim.stages.rating_problem import RatingProblem
+from sim.stages.timer import Timer
+from sim.stages.world import build_world
 from sim.world.render import Renderer
 from sim.world.scene import build_scene
 
@@ -94,34 +100,34 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
     """Generate, map once, run every method; the trial's record."""
     start = time.perf_counter()
     scenario, achieved = trial_scenario(spec)
-    episode = Episode(scenario)
+    timer = Timer()
+    world = build_world(scenario, timer)
+    scene = world.scene
     outcomes = []
-    with Renderer(episode.model, episode.pinhole.width, episode.pinhole.height) as renderer:
-        mapping = episode.map(renderer)
-        episode.hold()
-        mapped = episode.snapshot()
+    with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:
+        mapping = explore(world, renderer)
+        world.hold()
+        mapped = world.snapshot()
+        problem = RatingProblem(world.grid, scenario)  # the methods' searches share it
         for method in spec.methods:
             began = time.perf_counter()
-            episode.restore(mapped, method_rng(spec.seed, method))
-            search = dataclasses.replace(scenario.search, method=method.placement)
-            episode.s = dataclasses.replace(scenario, search=search)
-            scene = episode.scene
-            episode.targets = (scene.targets if method.secondary else (scene.primary,))
-            robots, frame, task = episode.place_and_do(renderer)
-            outcomes.append(_outcome(method, robots, frame, task,
+            run = world.restored(mapped, method_rng(spec.seed, method))
+            targets = scene.targets if method.secondary else (scene.primary,)
+            outcome = place_look_do(run, renderer, problem, method.placement, targets)
+            outcomes.append(_outcome(method, outcome.robots(run), outcome.frame, outcome.task,
                                      time.perf_counter() - began))
         render_s = renderer.seconds
-    timings = {k: round(v, 3) for k, v in episode.timer.totals.items()}
+    timings = timer.rounded(3)
     timings["rendering"] = round(render_s, 3)  # within the stages above
     timings["total"] = round(time.perf_counter() - start, 3)
     return {
         "density_index": spec.density_index, "trial": spec.trial, "seed": spec.seed,
         "density": spec.density, "achieved_density": round(achieved, 6),
         "obstacles": len(scenario.obstacles),
-        "workpiece_error": episode.workpiece_error.round(6).tolist(),
-        "mapping": {"views": mapping["views_total"],
-                    "region_entropy_bits": mapping["region_entropy_bits"]["after"],
-                    "region_known_fraction": mapping["region_known_fraction"]},
+        "workpiece_error": world.workpiece_error.round(6).tolist(),
+        "mapping": {"views": mapping.views_total,
+                    "region_entropy_bits": mapping.region_entropy_history_bits[-1],
+                    "region_known_fraction": mapping.region_known_fraction},
         "methods": outcomes,
         "timings_s": timings,
         "worker": {"pid": os.getpid(),  # and its peak memory so far (MiB)

@@ -32,9 +32,10 @@ from mapping import (
     region_mask,
 )
 from sim.config.scenario import Scenario
+from sim.stages.world import World
 from sim.world.collision import Proximity
 from sim.world.ik import IKSettings, solve_camera_pose
-from sim.world.render import camera_pose
+from sim.world.render import Renderer, camera_pose
 from sim.world.scene import Robot, Scene
 from sim.world.sensing import DepthSensor
 
@@ -52,6 +53,58 @@ def gain_model(s: Scenario, grid: OccupancyGrid, pinhole: Pinhole, interest: np.
     m = s.mapping
     return GainModel(grid, pinhole, interest, s.grid.max_range_m, m.gain_stride,
                      m.unknown_occupancy, s.rating.free_threshold)
+
+
+@dataclass(frozen=True)
+class Survey:
+    """What mapping did: the views each robot took, the target region's mean entropy
+    (bits) after each, and why it stopped; ``summary()`` is ``summary.json``'s
+    ``mapping``."""
+
+    depth_source: str
+    strategy: str
+    gain: str
+    views: dict[str, int]  # by robot
+    region_entropy_history_bits: list[float]  # before the first view, then after each
+    region_known_fraction: float  # of the region's voxels, entropy below 0.5 bit
+    region_voxels: int
+    stopped_by: str  # "threshold", "max_views" or "no_reachable_view"
+    taken: list[dict[str, Any]]  # each view: robot, position, axis, gain, entropy after
+    time_s: float
+
+    @property
+    def views_total(self) -> int:
+        return len(self.taken)
+
+    def summary(self) -> dict[str, Any]:
+        history = self.region_entropy_history_bits
+        return {
+            "depth_source": self.depth_source, "strategy": self.strategy, "gain": self.gain,
+            "views": self.views, "views_total": self.views_total,
+            "region_entropy_bits": {"before": history[0], "after": history[-1]},
+            "region_entropy_history_bits": history,
+            "region_known_fraction": self.region_known_fraction,
+            "region_voxels": self.region_voxels, "stopped_by": self.stopped_by,
+            "taken": self.taken, "time_s": self.time_s}
+
+
+def explore(world: World, renderer: Renderer) -> Survey:
+    """Stage 1: the robots map the target region into the world's grid, choosing views
+    by expected information; each view is recorded, and the map at the end."""
+    s, pinhole, recorder = world.scenario, world.pinhole, world.recorder
+    sensor = DepthSensor(renderer, pinhole, s.mapping.depth_source, s.camera.baseline_m,
+                         world.scene.robot_geoms())
+
+    def on_view(robot: Robot, T: np.ndarray, gain: float, depth: np.ndarray) -> None:
+        recorder.tick()
+        recorder.camera(robot.name, camera_pose(world.data, robot.camera), pinhole, depth=depth)
+        recorder.view(robot.name, T, pinhole, s.camera.far_m, gain)
+
+    with world.timer("mapping"):
+        survey = Exploration(world.scene, world.data, world.grid, sensor, pinhole, world.rng,
+                             on_view, world.model).run()
+    recorder.grid(world.grid)
+    return survey
 
 
 @dataclass(frozen=True)
@@ -91,7 +144,7 @@ class Exploration:
 
     # ------------------------------------------------------------ public
 
-    def run(self) -> dict[str, Any]:
+    def run(self) -> Survey:
         start = time.perf_counter()
         m = self.s.mapping
         robots = self.scene.robots if m.strategy != "single" else self.scene.robots[:1]
@@ -112,18 +165,12 @@ class Exploration:
         known = self.grid.entropy()[self.interest] < 0.5
         per_robot = {r.name: sum(v["robot"] == r.name for v in self.taken)
                      for r in self.scene.robots}
-        return {
-            "depth_source": m.depth_source, "strategy": m.strategy, "gain": m.gain,
-            "views": per_robot, "views_total": len(self.taken),
-            "region_entropy_bits": {"before": self.history[0], "after": self.history[-1]},
-            "region_entropy_history_bits": self.history,
-            "region_known_fraction": float(known.mean()),
-            "region_voxels": int(self.interest.sum()),
-            "stopped_by": "threshold" if self.history[-1] < m.entropy_threshold_bits
-            else "max_views" if len(self.taken) >= m.max_views else "no_reachable_view",
-            "taken": self.taken,
-            "time_s": time.perf_counter() - start,
-        }
+        stopped_by = ("threshold" if self.history[-1] < m.entropy_threshold_bits
+                      else "max_views" if len(self.taken) >= m.max_views
+                      else "no_reachable_view")
+        return Survey(m.depth_source, m.strategy, m.gain, per_robot, self.history,
+                      float(known.mean()), int(self.interest.sum()), stopped_by, self.taken,
+                      time.perf_counter() - start)
 
     def done(self) -> bool:
         m = self.s.mapping

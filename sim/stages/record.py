@@ -36,6 +36,7 @@ class Recorder:
         self.path = path
         self.unknown = unknown  # record never-observed voxels with the grid
         self.rec: rr.RecordingStream | None = None
+        self.steps = 0  # the ``step`` timeline's latest value
         if path is not None:
             self.rec = rr.RecordingStream("taskcam", recording_id=recording_id)
             self.rec.save(str(path))
@@ -44,6 +45,11 @@ class Recorder:
     def step(self, step: int) -> None:
         if self.rec is not None:
             self.rec.set_time("step", sequence=step)
+
+    def tick(self) -> None:
+        """The next step of the ``step`` timeline."""
+        self.steps += 1
+        self.step(self.steps)
 
     def targets(self, names: list[str], positions: np.ndarray, radii: list[float]) -> None:
         if self.rec is not None:

@@ -33,21 +33,22 @@ every tolerance: there is no measured slot to guide to.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import mujoco
 import numpy as np
 
+from calibration.panel import measuring_window, panel_mask, window
 from mapping import BoxModel, OccupancyGrid, Pinhole, fit_model, move_object, opencv_pose
 from mapping.cad import to_object
 from mapping.stereo import StereoSettings, stereo_depth
 from sim.config.scenario import TaskConfig
 from sim.stages.record import Recorder
+from sim.stages.task_result import Camera, TaskResult
 from sim.world.optics import Lens, defocus
 from sim.world.render import Renderer
-from sim.world.scene import Robot, Scene
+from sim.world.scene import Scene
 
 MIN_POINTS = 150  # panel points a measurement needs, over all cameras
 # A fit is good when half the points are this close to it and this many within 1 cm,
@@ -70,72 +71,6 @@ SETTINGS = StereoSettings()
 COARSE = 2
 
 
-TRUSTED = ("corrected", "as commanded")  # pose statuses measured with at full weight
-
-
-@dataclass
-class Camera:
-    """A placed camera: its robot, believed pose (4x4, MuJoCo camera convention), that
-    pose's uncertainty (m, at a metre) and status (``corrected``, ``uncertain``,
-    ``failed``: not corrected, or ``as commanded`` with correction off)."""
-
-    robot: Robot
-    believed: np.ndarray
-    pose_sd_m: float = 0.0
-    pose_status: str = "as commanded"
-    lost_in_a_row: int = 0
-
-    @property
-    def trusted(self) -> bool:
-        return self.pose_status in TRUSTED
-
-
-@dataclass
-class TaskResult:
-    """What happened; ``summary()`` is ``summary.json``'s ``task``."""
-
-    size_m: float
-    tolerances: tuple[float, ...]
-    attempted: bool = True  # False: no slot to guide to (the target was not located)
-    frame_robots: list[str] = field(default_factory=list)  # whose sightings placed the slot
-    cameras: list[dict[str, Any]] = field(default_factory=list)  # robot, pose status, sd
-    final_displacement: np.ndarray | None = None  # true, panel minus slot (m)
-    measured_displacement: np.ndarray | None = None  # the last measurement's
-    steps: int = 0
-    measurements: int = 0
-    failed: list[dict[str, Any]] = field(default_factory=list)  # step, reason per camera
-    lost_views: int = 0
-    replacements: list[dict[str, Any]] = field(default_factory=list)
-    stopped_by: str = ""
-    voxels_freed: int = 0
-    voxels_occupied: int = 0
-
-    def success(self) -> dict[str, bool]:
-        error = (np.inf if self.final_displacement is None or not self.attempted
-                 else float(np.linalg.norm(self.final_displacement)))
-        return {f"{t:g}": error <= t * self.size_m for t in self.tolerances}
-
-    def summary(self) -> dict[str, Any]:
-        final, measured = self.final_displacement, self.measured_displacement
-
-        def norm(v: np.ndarray | None) -> float | None:
-            return None if v is None else round(float(np.linalg.norm(v)), 6)
-
-        return {
-            "attempted": self.attempted,
-            "target_frame": {"measured": bool(self.frame_robots), "robots": self.frame_robots},
-            "cameras": self.cameras,
-            "object_size_m": self.size_m,
-            "final_displacement": None if final is None else final.round(5).tolist(),
-            "final_displacement_m": norm(final), "measured_displacement_m": norm(measured),
-            "success": self.success(), "steps": self.steps,
-            "measurements": self.measurements, "failed_measurements": len(self.failed),
-            "lost_views": self.lost_views, "replacements": self.replacements,
-            "stopped_by": self.stopped_by, "failures": self.failed[:10],
-            "map_update": {"voxels_freed": self.voxels_freed,
-                           "voxels_occupied": self.voxels_occupied}}
-
-
 def panel_model(model: mujoco.MjModel) -> BoxModel:
     """The panel's CAD model (its box geoms, in its body frame)."""
     body = model.body("panel/panel").id
@@ -144,34 +79,23 @@ def panel_model(model: mujoco.MjModel) -> BoxModel:
     return BoxModel(model.geom_pos[geoms].copy(), model.geom_size[geoms].copy())
 
 
-def _window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
-    """Rows and columns within ``margin`` pixels of ``mask``'s pixels."""
-    ys, xs = np.nonzero(mask)
-    h, w = mask.shape
-    return (slice(max(0, ys.min() - margin), min(h, ys.max() + margin + 1)),
-            slice(max(0, xs.min() - margin), min(w, xs.max() + margin + 1)))
+@dataclass(frozen=True)
+class Replacement:
+    """A camera's re-placement during the task: its record in ``replacements``, and the
+    camera as the task now knows it (None: it could not be placed again)."""
+
+    record: dict[str, Any]
+    camera: Camera | None
+
+
+# Given a camera that lost the panel, the step and how many steps running it lost it:
+# its re-placement, or None if cameras are not re-placed.
+Replace = Callable[[Camera, int, int], Replacement | None]
 
 
 def _measuring_window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
-    """:func:`_window`, with the stereo's disparity range in front (left) of it."""
-    rows, cols = _window(mask, margin)
-    return rows, slice(max(0, cols.start - SETTINGS.num_disparities), cols.stop)
-
-
-def panel_mask(rgb: np.ndarray) -> np.ndarray:
-    """The panel's pixels: the convex hull of its yellow squares (largest blob)."""
-    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
-    yellow = cv2.inRange(hsv, (20, 100, 50), (38, 255, 255))  # not the orange bases (17)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(
-        cv2.morphologyEx(yellow, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)))
-    mask = np.zeros(rgb.shape[:2], np.uint8)
-    if count <= 1:
-        return mask.astype(bool)
-    biggest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    ys, xs = np.nonzero(labels == biggest)
-    hull = cv2.convexHull(np.column_stack([xs, ys]).astype(np.int32))
-    cv2.fillConvexPoly(mask, hull, 1)
-    return cv2.erode(mask, np.ones((3, 3), np.uint8)).astype(bool)  # off its outline
+    """The window around ``mask`` measuring uses, with the stereo's disparity range."""
+    return measuring_window(mask, margin, SETTINGS.num_disparities)
 
 
 class InsertionTask:
@@ -299,7 +223,7 @@ class InsertionTask:
         if mask.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
         depth = stereo_depth(left, right, self.pinhole, self.baseline_m, SETTINGS,
-                             _window(near, self.cfg.stereo_margin_px))
+                             window(near, self.cfg.stereo_margin_px))
         v, u = np.nonzero(mask & np.isfinite(depth))
         if len(v) < MIN_POINTS // 2:
             return "no stereo depth on the panel"
@@ -316,22 +240,28 @@ class InsertionTask:
 
     def not_attempted(self, cameras: list[Camera], why: str) -> TaskResult:
         """The outcome of a task that could not start: the panel stays where it lies."""
-        result = self._result(cameras, [])
-        result.attempted, result.stopped_by = False, why
-        return result
+        return TaskResult(self.model.size, self.cfg.tolerances, attempted=False,
+                          cameras=self._camera_rows(cameras), stopped_by=why)
 
-    def _result(self, cameras: list[Camera], frame_robots: list[str]) -> TaskResult:
-        return TaskResult(self.model.size, self.cfg.tolerances, frame_robots=frame_robots,
-                          cameras=[{"robot": c.robot.name, "pose": c.pose_status,
-                                    "pose_sd_m": round(c.pose_sd_m, 6)} for c in cameras])
+    @staticmethod
+    def _camera_rows(cameras: list[Camera]) -> list[dict[str, Any]]:
+        return [{"robot": c.robot.name, "pose": c.pose_status,
+                 "pose_sd_m": round(c.pose_sd_m, 6)} for c in cameras]
 
-    def run(self, cameras: list[Camera], slot: np.ndarray,
-            replace: Callable[[Camera, int], dict[str, Any] | None] | None = None,
+    def run(self, cameras: list[Camera], slot: np.ndarray, replace: Replace | None = None,
             frame_robots: list[str] | None = None) -> TaskResult:
         """Carry, then steer the panel into the slot believed at ``slot`` (world, m),
-        which the sightings of ``frame_robots`` placed."""
+        which the sightings of ``frame_robots`` placed; ``replace`` places a camera
+        that keeps losing the panel again."""
         cfg = self.cfg
-        result = self._result(cameras, frame_robots or [])
+        rows = self._camera_rows(cameras)
+        cameras = list(cameras)  # a re-placed camera takes its predecessor's place
+        lost = {c.robot.name: 0 for c in cameras}  # steps running without the panel
+        steps = measurements = lost_views = freed = occupied = 0
+        failed: list[dict[str, Any]] = []
+        replacements: list[dict[str, Any]] = []
+        measured: np.ndarray | None = None
+        stopped_by = "max_steps"
         above = np.array([0.0, 0.0, cfg.approach_m])
         lying = self.panel  # where it was picked up: its last known pose
         start = lying[:3, 3].copy()
@@ -346,34 +276,31 @@ class InsertionTask:
         moved_from = lying
         descending = False
         for step in range(cfg.max_steps):
-            result.steps = step + 1
+            steps = step + 1
             t = t0 + 2.0 + STEP_S * step
             pose, why = self.measure(cameras, guess)
             for cam in cameras:
-                if cam.robot.name in why:
-                    cam.lost_in_a_row += 1
-                    result.lost_views += 1
-                else:
-                    cam.lost_in_a_row = 0
-            seeing = self._recover(cameras, step, result, replace)
+                missed = cam.robot.name in why
+                lost[cam.robot.name] = lost[cam.robot.name] + 1 if missed else 0
+                lost_views += missed
+            seeing = self._recover(cameras, lost, step, replacements, replace)
             if pose is None:
-                result.failed.append({"step": step, "why": why})
+                failed.append({"step": step, "why": why})
                 if not seeing:
-                    result.stopped_by = "no camera sees the panel"
+                    stopped_by = "no camera sees the panel"
                     break
                 continue
-            result.measurements += 1
-            freed, occupied = move_object(self.grid, self.model, moved_from, pose)
-            result.voxels_freed += freed
-            result.voxels_occupied += occupied
+            measurements += 1
+            emptied, filled = move_object(self.grid, self.model, moved_from, pose)
+            freed, occupied = freed + emptied, occupied + filled
             moved_from = pose
             guess = pose
             displacement = pose[:3, 3] - slot
-            result.measured_displacement = displacement
+            measured = displacement
             self.recorder.panel(t, self.panel[:3, 3], pose[:3, 3],
                                 float(np.linalg.norm(displacement)))
             if np.linalg.norm(displacement) < cfg.stop_m:
-                result.stopped_by = "measured displacement below stop_m"
+                stopped_by = "measured displacement below stop_m"
                 break
             target = slot.copy()
             if not descending and np.linalg.norm(displacement[:2]) > OVER_SLOT_M:
@@ -389,21 +316,27 @@ class InsertionTask:
             self._move_panel(self.panel[:3, 3] + executed)
             guess = pose.copy()
             guess[:3, 3] += step_vec
-        else:
-            result.stopped_by = "max_steps"
         truth_slot = self.data.site_xpos[self.slot_site]
-        result.final_displacement = self.panel[:3, 3] - truth_slot
-        return result
+        return TaskResult(
+            self.model.size, cfg.tolerances, frame_robots=frame_robots or [], cameras=rows,
+            final_displacement=self.panel[:3, 3] - truth_slot, measured_displacement=measured,
+            steps=steps, measurements=measurements, failed=failed, lost_views=lost_views,
+            replacements=replacements, stopped_by=stopped_by, voxels_freed=freed,
+            voxels_occupied=occupied)
 
-    def _recover(self, cameras: list[Camera], step: int, result: TaskResult,
-                 replace: Callable[[Camera, int], dict[str, Any] | None] | None) -> bool:
+    def _recover(self, cameras: list[Camera], lost: dict[str, int], step: int,
+                 replacements: list[dict[str, Any]], replace: Replace | None) -> bool:
         """Re-place the cameras that lost the panel ``lost_limit`` steps running (once
         each); whether any camera may still see it."""
-        for cam in cameras:
-            if cam.lost_in_a_row >= self.cfg.lost_limit and replace is not None \
-                    and not any(r["robot"] == cam.robot.name for r in result.replacements):
-                record = replace(cam, step)
-                if record is not None:
-                    result.replacements.append(record)
-                    cam.lost_in_a_row = 0
-        return any(c.lost_in_a_row < self.cfg.lost_limit for c in cameras)
+        limit = self.cfg.lost_limit
+        for i, cam in enumerate(cameras):
+            name = cam.robot.name
+            if lost[name] >= limit and replace is not None \
+                    and not any(r["robot"] == name for r in replacements):
+                again = replace(cam, step, lost[name])
+                if again is not None:
+                    replacements.append(again.record)
+                    lost[name] = 0
+                    if again.camera is not None:
+                        cameras[i] = again.camera
+        return any(lost[c.robot.name] < limit for c in cameras)

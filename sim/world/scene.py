@@ -9,8 +9,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from placement import circle_in_plane
-from sim.config.scenario import Scenario, ScenarioError
+from calibration.targets import Target
+from sim.config.scenario import Scenario
+from sim.config.schema import ScenarioError
 from sim.world.textures import as_files, link_files, paint
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
@@ -33,27 +34,6 @@ JOINT_SPEEDS = dict.fromkeys(ROBOT_JOINTS[3:], math.pi) | {
 def yaw_quat(yaw_rad: float) -> list[float]:
     """Quaternion (w, x, y, z) of a rotation by ``yaw_rad`` about +z."""
     return [math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)]
-
-
-@dataclass(frozen=True)
-class Target:
-    """A circular-hole target in the world frame (m)."""
-
-    name: str
-    role: str
-    geom: str  # geom name in the compiled model
-    position: np.ndarray  # centre of the hole's visible face
-    normal: np.ndarray  # unit, pointing out of the plate
-    radius: float
-    st_error: float
-
-    def rim(self, count: int = 8, scale: float = 1.0) -> np.ndarray:
-        """``count`` points on the rim circle (scaled by ``scale``), shape (count, 3)."""
-        return self.position + circle_in_plane(self.normal, scale * self.radius, count)
-
-    def summary(self) -> dict[str, object]:
-        return {"name": self.name, "role": self.role, "position": self.position.tolist(),
-                "normal": self.normal.tolist(), "radius": self.radius}
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from calibration import holes_near
-from calibration.ekf import StereoCamera
 from mapping import Pinhole, opencv_pose, world_to_camera
-from sim.world.scene import Target
+
+from .ekf import StereoCamera
+from .targets import Target, holes_near
 
 # A target is looked for where the believed pose puts it, as far around as that
 # prediction is uncertain: SIGMAS standard deviations of its pixel, plus the detector's

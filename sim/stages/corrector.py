@@ -1,0 +1,236 @@
+"""The pose corrector: takes a stereo frame whenever the camera has moved enough along
+a move, tracks the fiducials through them, and at the goal estimates the camera's pose
+from them (sec. 2.4; the method is told in sim/stages/correction.py)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+
+from calibration.ekf import FiducialFilter, StereoCamera
+from calibration.fiducials import Candidate, certainty, depth_contrast, pick, rate, visual_contrast
+from calibration.pose import METHODS, DegenerateGeometryError, estimate_pose, invert, rotation_deg
+from calibration.targets import to_gray
+from calibration.tracking import (
+    FeatureFinder,
+    FiducialTracker,
+    Frame,
+    StereoFeatures,
+    TrackerSettings,
+)
+from mapping import OccupancyGrid, Pinhole, mujoco_pose, opencv_pose
+from sim.config.scenario import CorrectionConfig
+from sim.stages.correction import Correction, UsedFiducial, distrust
+from sim.world.render import Renderer, camera_pose
+from sim.world.scene import Robot, Scene
+
+WIDER = 3.0  # the final frame's second search: this many times search_px and max_jump
+
+
+class PoseCorrector:
+    """Takes the frames of each move and corrects the camera's pose at its end."""
+
+    def __init__(self, scene: Scene, belief: mujoco.MjData, world: mujoco.MjData,
+                 renderer: Renderer, pinhole: Pinhole, baseline_m: float,
+                 grid: OccupancyGrid, config: CorrectionConfig) -> None:
+        self.scene, self.belief, self.world = scene, belief, world
+        self.renderer, self.pinhole, self.grid, self.cfg = renderer, pinhole, grid, config
+        self.camera = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, baseline_m)
+        self.settings = TrackerSettings(features=config.features, search_px=config.search_px,
+                                        pixel_sigma=config.pixel_sigma)
+        self.finder = FeatureFinder(self.settings)
+        self.robot_geoms = scene.robot_geoms()
+        self._scratch = scene.make_data()
+        self._tracker: FiducialTracker | None = None
+        self._last_left = np.zeros((pinhole.height, pinhole.width, 3), np.uint8)
+        self._last_measured = np.eye(4)  # the measured camera pose at the last frame
+        self._joints = np.zeros(0)  # the latest measured joints
+        self._last_located = np.eye(4)  # g01 of the last located frame ...
+        self._located_measured = np.eye(4)  # ... and the measured camera pose then
+        self._located_joints = np.zeros(0)  # ... and the measured joints then
+        self._found: StereoFeatures | None = None  # the last frame's features
+        self._retraced = False  # the move is being gone over again (frames twice as dense)
+        self._start_sd = (0.0, 0.0)  # of the pose the move started from
+
+    # ------------------------------------------------------------ along the move
+
+    def nominal_pose(self, robot: Robot, joints: np.ndarray) -> np.ndarray:
+        """The camera pose (OpenCV convention) of the nominal model at ``joints``."""
+        d = self._scratch
+        d.qpos[:] = self.belief.qpos
+        d.qpos[robot.qpos_adr] = joints
+        mujoco.mj_kinematics(self.scene.model, d)
+        mujoco.mj_camlight(self.scene.model, d)
+        return opencv_pose(camera_pose(d, robot.camera))
+
+    def begin(self, robot: Robot, start_joints: np.ndarray,
+              start: tuple[np.ndarray, tuple[float, float]] | None = None) -> None:
+        """The first frame, at the pose before the move: ``start`` (the camera pose the
+        robot believes, MuJoCo convention, and its standard deviation in m and deg), or
+        where the joints put it when no move has made an error yet."""
+        self._tracker = FiducialTracker(self.camera, self.settings)
+        measured = self.nominal_pose(robot, start_joints)  # frames are predicted from it
+        T = measured if start is None else opencv_pose(start[0])
+        self._start_sd = (0.0, 0.0) if start is None else start[1]
+        frame = self._tracker.start(self._look(robot), invert(T))
+        self._last_measured = self._located_measured = measured
+        self._last_located = frame.g01
+        self._joints = np.array(start_joints, copy=True)
+        self._located_joints = self._joints.copy()
+        self._retraced = False
+
+    def on_sample(self, robot: Robot) -> Callable[[float, np.ndarray], None]:
+        """A callback for the mover, given the measured joints: a frame whenever the
+        camera has moved enough since the last one."""
+        cfg = self.cfg
+
+        def sample(t: float, measured: np.ndarray) -> None:
+            self._joints = np.array(measured, copy=True)
+            T = self.nominal_pose(robot, measured)
+            last = self._last_measured
+            denser = 2.0 if self._retraced else 1.0
+            if (rotation_deg(last, T) >= cfg.frame_every_deg / denser
+                    or np.linalg.norm(T[:3, 3] - last[:3, 3]) >= cfg.frame_every_m / denser):
+                self._frame(robot, T)
+        return sample
+
+    def _frame(self, robot: Robot, T_measured: np.ndarray, wider: float | None = None) -> bool:
+        """Takes a frame (or, ``wider``, tracks the last again that much further afield);
+        whether it was located."""
+        assert self._tracker is not None, "begin() first"
+        # the last located pose, moved as the joints say since
+        motion = invert(self._located_measured) @ T_measured
+        predicted = invert(invert(self._last_located) @ motion)
+        if wider is None:
+            self._found = self._look(robot)
+            frame = self._tracker.add(self._found, predicted)
+        else:
+            assert self._found is not None, "a frame first"
+            frame = self._tracker.retry(self._found, predicted, wider)
+        self._last_measured = T_measured
+        if frame.located:
+            self._last_located, self._located_measured = frame.g01, T_measured
+            self._located_joints = self._joints.copy()
+        return frame.located
+
+    def _search_wider(self, robot: Robot) -> bool:
+        """The last frame tracked again, its fiducials looked for ``WIDER`` times as far
+        from their predicted pixels and its pose allowed as much further from the
+        prediction; whether it was located."""
+        return self._frame(robot, self._last_measured, WIDER)
+
+    def retrace(self, path: np.ndarray, back_to: np.ndarray) -> np.ndarray:
+        """The way (k, 9) back along ``path`` to its waypoint nearest the joints
+        ``back_to`` (where a frame was last located) and forth again to the goal; frames
+        are taken twice as densely on it."""
+        k = min(int(np.argmin(np.linalg.norm(path - back_to, axis=1))), len(path) - 2)
+        self._retraced = True
+        return np.vstack([path[k:][::-1], path[k + 1:]])
+
+    def _look(self, robot: Robot) -> StereoFeatures:
+        r, d = self.renderer, self.world
+        left, right = r.rgb(d, robot.camera), r.rgb(d, robot.right_camera)
+        self._last_left = left
+        # a right keypoint on a robot can only pair with a left one there, already out
+        return self.finder.stereo(left, right, self._own(robot.camera))
+
+    def _own(self, camera: str) -> np.ndarray:
+        seen = self.renderer.segmentation(self.world, camera)
+        return (seen >= 0) & self.robot_geoms[np.maximum(seen, 0)]
+
+    # ------------------------------------------------------------ at the goal
+
+    def finish(self, robot: Robot, last_try: bool = True) -> Correction:
+        """The last frame, at the goal after settling; the corrected pose from it. If the
+        frame cannot be located even by a wider search, the result has ``retrace_from``
+        (the joints to go back to) unless ``last_try``; :meth:`retrace` then prepares the
+        way back and forth, and ``finish`` is called again."""
+        tracker = self._tracker
+        assert tracker is not None, "begin() first"
+        tried = ["wider search", "retrace"] if self._retraced else []
+        located = self._frame(robot, self.nominal_pose(robot, self._joints))
+        if not located:
+            if not self._retraced:
+                tried.append("wider search")
+            located = self._search_wider(robot)
+        out = Correction(tried=tried, start_sd=self._start_sd,
+                         recovered_by=tried[-1] if located and tried else "",
+                         frames=len(tracker.frames),
+                         located=sum(f.located for f in tracker.frames),
+                         fiducials_tracked=len(tracker.fiducials))
+        if not located:
+            out = replace(out, reason="too few fiducials found again in the final frame")
+            if not last_try and not self._retraced:
+                return replace(out, retrace_from=self._located_joints.copy())
+        self._tracker = None
+        if not located:
+            return out
+        bundle, frames, kept = tracker.solve()
+        cov = bundle.pose_cov[-1]
+        out = replace(out, bundle_rms_px=bundle.rms_px,
+                      bundle_pose=mujoco_pose(invert(bundle.poses[-1])),
+                      pose_sd=(float(np.sqrt(np.trace(cov[3:, 3:]))),
+                               math.degrees(float(np.sqrt(np.trace(cov[:3, :3]))))))
+        candidates, filters, ids = self._rated(frames, bundle.poses, bundle.pose_cov, kept)
+        chosen = pick(candidates, self.cfg.fiducials)
+        if not chosen:
+            return replace(out, reason="no fiducial of the final frame was seen before")
+        position = {id(c): k for k, c in enumerate(candidates)}
+        index = [position[id(c)] for c in chosen]
+        fids = [filters[k] for k in index]
+        zs = np.array([frames[-1].observations[ids[k]] for k in index])
+        world = np.array([f.x for f in fids])
+        cameras = np.array([self.camera.point(z) for z in zs])
+        try:
+            estimate = estimate_pose(world, cameras, zs[:, :2], tracker.K, self.cfg.estimator)
+        except DegenerateGeometryError as exc:
+            return replace(out, reason=str(exc))
+        out = replace(out, estimate=estimate, pose=mujoco_pose(estimate.pose))
+        others: dict[str, np.ndarray] = {}
+        for method in METHODS:  # the same fiducials by every estimator, for comparison
+            if method != estimate.method:
+                try:
+                    other = estimate_pose(world, cameras, zs[:, :2], tracker.K, method)
+                except DegenerateGeometryError:
+                    continue
+                if other.method == method:
+                    others[method] = mujoco_pose(other.pose)
+        used = [UsedFiducial(f.x, f.covariance, z[:2], float(z[2]), c.rating,
+                             tracker.fiducials.tracks[ids[k]])
+                for f, z, c, k in zip(fids, zs, chosen, index, strict=True)]
+        return replace(out, reason=distrust(out), others=others, used=used)
+
+    def _rated(self, frames: list[Frame], poses: list[np.ndarray], pose_cov: list[np.ndarray],
+               kept: np.ndarray) -> tuple[list[Candidate], list[FiducialFilter], list[int]]:
+        """The final frame's fiducials seen before: each an EKF over its earlier
+        measurements (eq. 10-12), rated by eq. 8 at its place in the final image."""
+        cfg = self.cfg
+        final = frames[-1]
+        known = set(int(i) for i in kept)
+        p = self.grid.probability()
+        gray = to_gray(self._last_left)
+        candidates, filters, ids = [], [], []
+        for i, z in final.observations.items():
+            if i not in known:
+                continue
+            earlier = [(k, f.observations[i]) for k, f in enumerate(frames[:-1])
+                       if i in f.observations]
+            if not earlier:
+                continue
+            k0, z0 = earlier[0]
+            ekf = FiducialFilter(self.camera, z0, poses[k0], cfg.pixel_sigma,
+                                 math.sqrt(2) * cfg.pixel_sigma, pose_cov[k0])
+            for k, zk in earlier[1:]:
+                ekf.update(zk, poses[k], pose_cov[k])
+            x = ekf.x
+            candidates.append(Candidate(z[:2], float(z[2]), certainty(self.grid, p, x),
+                                        visual_contrast(gray, z[:2]),
+                                        depth_contrast(self.grid, p, x)))
+            filters.append(ekf)
+            ids.append(i)
+        rate(candidates)
+        return candidates, filters, ids

@@ -1,0 +1,66 @@
+"""A robot's move to its placement in the world: the planned path followed in physics,
+through its position actuators, with its positioning errors (sim/world/motion.py), and
+with correction on, the frames its camera's pose is corrected from (sim/stages/corrector.py).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from sim.stages.correction import Correction
+from sim.stages.corrector import PoseCorrector
+from sim.stages.world import World
+from sim.world.motion import MotionResult
+from sim.world.render import camera_pose
+from sim.world.scene import Robot
+
+
+def move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector | None,
+         prior_sd: tuple[float, float]) -> tuple[MotionResult, Correction | None]:
+    """Follow ``path`` (k, 9 joints) in the world, recording the robot; with a
+    ``corrector``, correct the camera's pose at the end (going back along the path and
+    forth again if the last frame cannot be located) and leave the robot believing it.
+    ``prior_sd`` is an uncorrected pose's standard deviation (m, deg). Time spent on
+    frames during the move counts as correction's."""
+    timer, recorder = world.timer, world.recorder
+    links = sorted(robot.body_ids)
+    frames: Callable[[float, np.ndarray], None] | None = None
+    if corrector is not None:
+        with timer("correction"):
+            corrector.begin(robot, path[0], world.at_rest(robot))
+        frames = corrector.on_sample(robot)
+
+    framing = 0.0  # wall time (s) spent on frames during the move
+
+    def on_sample(t: float, measured: np.ndarray) -> None:
+        nonlocal framing
+        recorder.motion(robot.name, t, world.data.xpos[links],
+                        camera_pose(world.data, robot.camera))
+        if frames is not None:
+            start = time.perf_counter()
+            frames(t, measured)
+            framing += time.perf_counter() - start
+
+    error = world.errors.draw(robot)
+    with timer("motion"):
+        motion = world.mover.follow(robot, path, error, on_sample)
+    if corrector is None:
+        timer.move(framing, "motion", "correction")
+        return motion, None
+    with timer("correction"):
+        correction = corrector.finish(robot, last_try=len(path) < 2)
+    if correction.retrace_from is not None:  # back to where a frame was located, and forth
+        again = corrector.retrace(path, correction.retrace_from)
+        with timer("motion"):
+            world.mover.follow(robot, again, error, on_sample)
+        with timer("correction"):
+            correction = corrector.finish(robot)
+    believed = (correction.pose if correction.pose is not None
+                else camera_pose(world.belief, robot.camera))
+    world.came_to_rest(robot, believed, correction.believed_sd(prior_sd))
+    timer.move(framing, "motion", "correction")
+    recorder.fiducials(robot.name, correction)
+    return motion, correction

@@ -1,0 +1,136 @@
+"""Stage 2 for one robot: place its camera (sec. 2.3).
+
+The rating function is searched over known-free voxels in the robot's region (the
+robots placed before count as occluders, at their commanded poses); with the method
+``biased_random`` or ``information_gain`` the rated candidates are reordered. The
+candidates from which the hole detector can find the target (placement.detectable) are
+tried in turn until one is reachable by collision-avoiding IK (base and arm) along a
+path that keeps clear of everything, and sees its target with no geometry in the way;
+the robot then moves there in the world (sim/stages/move.py) before the next robot
+plans. Planning uses the nominal model and the belief, never the world's truth.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+
+from calibration.targets import Target
+from mapping import region_mask
+from placement import (
+    RatingField,
+    Region,
+    biased_random,
+    detectable,
+    information_gain,
+    target_points,
+)
+from sim.stages.corrector import PoseCorrector
+from sim.stages.exploration import gain_model
+from sim.stages.move import move
+from sim.stages.placement_result import Placement
+from sim.stages.rating_problem import RatingProblem, target_model
+from sim.stages.world import World
+from sim.world.collision import blocked_rays, robot_points
+from sim.world.planning import ArmPlanner
+from sim.world.render import camera_pose
+from sim.world.scene import Robot
+
+REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
+
+
+def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
+    """Where ``robot``'s camera may go: the scenario's heights, within reach of its base
+    as planned, and apart from the camera positions already ``taken`` (m)."""
+    q = world.scenario.search
+    keep_out = tuple((tuple(p), q.robot_separation_m) for p in taken)
+    base = world.belief.qpos[robot.qpos_adr[:2]]
+    return Region(q.camera_z_m[0], q.camera_z_m[1], keep_out,
+                  ((float(base[0]), float(base[1])), q.reach_m))
+
+
+def ranked_field(world: World, problem: RatingProblem, robot: Robot,
+                 targets: tuple[Target, ...], taken: list[np.ndarray], method: str
+                 ) -> RatingField:
+    """The candidates for ``robot``'s camera in the order ``method`` tries them
+    (``rating``, ``biased_random`` or ``information_gain``)."""
+    s = world.scenario
+    others = [pts for other in world.scene.robots if other is not robot
+              for pts in robot_points(world.nominal, world.belief, other)]
+    rated = problem.field(robot.name, targets, region(world, robot, taken), others,
+                          world.belief.qpos, world.rng, world.timer)
+    if method == "biased_random":
+        return biased_random(rated, [target_model(t) for t in targets], problem.camera,
+                             world.rng, s.search.random_max_angle_deg)
+    if method == "information_gain":
+        primary = world.scene.primary
+        interest = region_mask(problem.grid, primary.position, np.array(s.mapping.region_half_m))
+        gains = gain_model(s, problem.grid, world.pinhole, interest)
+        with world.timer("placement"):
+            return information_gain(rated, targets.index(primary), primary.position, gains,
+                                    world.rng, s.search.gain_samples)
+    return rated
+
+
+def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.ndarray],
+          targets: tuple[Target, ...], method: str, corrector: PoseCorrector | None,
+          prior_sd: tuple[float, float], *, index: int = 0, step: int | None = None,
+          reason: str = "initial") -> Placement:
+    """Search, plan and move ``robot`` to view one of ``targets``, given the camera
+    positions already ``taken`` (m) and the placement ``method``. ``index``, ``step`` and
+    ``reason`` say which of the robot's placements this is (a re-placement during the
+    task has a step); ``prior_sd`` is an uncorrected pose's standard deviation (m, deg)."""
+    s, belief = world.scenario, world.belief
+    q = s.search
+    ranked = ranked_field(world, problem, robot, targets, taken, method)
+    world.recorder.candidates(robot.name, ranked.ratings.positions, ranked.ratings.total)
+    counts: dict[str, Any] = {"strategy": ranked.strategy, "evaluated": ranked.evaluated}
+    tried = undetectable = 0
+    rejections: dict[str, int] = defaultdict(int)
+    unreachable: list[dict[str, Any]] = []
+    start = belief.qpos.copy()
+    planner = ArmPlanner(world.scene, belief, q.clearance_m, q.clearance_m + s.motion.ik_margin_m,
+                         s.robots.move_base)
+    rejected: list[np.ndarray] = []
+    for i in ranked.ranked():
+        if tried >= q.ik_candidates:
+            break
+        target = targets[int(ranked.target[i])]
+        position = ranked.ratings.positions[i]
+        if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in rejected):
+            continue  # next to a candidate that failed: try somewhere else
+        if not detectable(position[None], target_model(target), problem.camera,
+                          baseline_m=s.camera.baseline_m)[0]:
+            undetectable += 1  # too far or too oblique for the hole detector
+            continue  # (in either stereo image: sightings need both)
+        tried += 1
+        rejected.append(position)
+        with world.timer("ik"):
+            plan = planner.plan(robot, target.position, position)
+        why = plan.reason
+        if why is None and q.check_sight and blocked_rays(
+                world.nominal, belief, robot, target_points(target_model(target))):
+            why = "occluded"
+            world.scene.set_robot(belief, robot, start)
+        if why is not None:
+            rejections[why] += 1
+            if why == "unreachable" and len(unreachable) < 5:
+                unreachable.append({
+                    "position": position.round(4).tolist(),
+                    "position_error_m": round(plan.ik.position_error_m, 5),
+                    "orientation_error_deg": round(plan.ik.orientation_error_deg, 4)})
+            continue
+        commanded_pose = camera_pose(belief, robot.camera)
+        world.recorder.chosen(robot.name, position, target.position, target.name)
+        world.recorder.hulls(robot.name, ranked.hulls[target.name])
+        motion, correction = move(world, robot, plan.ik.path, corrector, prior_sd)
+        return Placement(robot, index, step, reason, target, position, commanded_pose,
+                         camera_pose(world.data, robot.camera), ranked.ratings.terms(int(i)),
+                         plan.ik, motion, correction, candidates_tried=tried,
+                         undetectable=undetectable, rejections=dict(rejections),
+                         unreachable=unreachable, **counts)
+    return Placement(robot, index, step, reason, candidates_tried=tried,
+                     undetectable=undetectable, rejections=dict(rejections),
+                     unreachable=unreachable, **counts)

@@ -1,0 +1,73 @@
+"""The rating function over one map (sec. 2.3): the question every placement search of
+that map asks, with the answers already found.
+
+The same question gets the same answer: methods started from one mapped state share
+their first robot's rating field (a deterministic search draws nothing), and every
+search of the map its occluders' hulls. A changed map is a new problem.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calibration.targets import Target
+from mapping import OccupancyGrid
+from placement import (
+    CameraModel,
+    Hull,
+    RatingField,
+    Region,
+    SearchSettings,
+    TargetModel,
+    Weights,
+    search,
+)
+from sim.config.scenario import Scenario
+from sim.stages.timer import Timer
+
+
+def camera_model(s: Scenario) -> CameraModel:
+    """The scenario's camera as the rating function sees it."""
+    cam = s.camera
+    return CameraModel(math.radians(cam.fovy_deg), cam.height, cam.near_m, cam.far_m)
+
+
+def target_model(t: Target) -> TargetModel:
+    """A target as the rating function sees it."""
+    return TargetModel(t.name, t.position, t.normal, t.radius, t.st_error)
+
+
+class RatingProblem:
+    """The rating of camera positions in one map, ``grid`` (not changed while this is
+    searched), with the scenario's weights, search strategy and camera."""
+
+    def __init__(self, grid: OccupancyGrid, scenario: Scenario) -> None:
+        r, q = scenario.rating, scenario.search
+        self.grid = grid
+        self.camera = camera_model(scenario)
+        self.weights = Weights(r.alpha, r.beta, r.gamma, r.delta)
+        self.free_threshold = r.free_threshold
+        self.settings = SearchSettings(q.strategy, q.coarse_step, q.max_distance_m, q.samples,
+                                       r.unknown_occludes, r.hull_block,
+                                       directions=r.tfv_directions, cone=r.expansion == "cone")
+        self._fields: dict[tuple[object, ...], RatingField] = {}  # by question
+        self._hulls: dict[tuple[float, ...], list[Hull]] = {}  # the map's occluders'
+
+    def field(self, robot: str, targets: tuple[Target, ...], region: Region,
+              others: list[np.ndarray], planned: np.ndarray, rng: np.random.Generator,
+              timer: Timer) -> RatingField:
+        """The rating field of ``targets`` over ``region`` for ``robot``, the other
+        robots' bodies (point sets, m) occluding, with every robot at the joints
+        ``planned`` (the belief's qpos). A random strategy searches afresh, drawing from
+        ``rng``; a deterministic one answers a question asked before from memory."""
+        key = (robot, tuple(t.name for t in targets), region, planned.tobytes())
+        found = self._fields.get(key) if self.settings.strategy != "random" else None
+        if found is None:
+            with timer("placement"):
+                found = search(self.grid, [target_model(t) for t in targets], self.camera,
+                               self.weights, self.free_threshold, region, self.settings, rng,
+                               others, self._hulls)
+            self._fields[key] = found
+        return found
