@@ -40,6 +40,12 @@ class Audit:
     def add(self, kind: str, robot: str | None, message: str) -> None:
         self.findings.append(Finding(kind, robot, message))
 
+    def count(self, key: str, tally: str = "counts") -> None:
+        """One more ``key`` in the named tally (counts, refused, refused_robots or
+        correction_failures)."""
+        counter: Counter[str] = getattr(self, tally)
+        counter[key] += 1
+
     def at_most(self, name: str, value: float) -> None:
         self.worst[name] = max(self.worst.get(name, 0.0), float(value))
 

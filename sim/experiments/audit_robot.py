@@ -82,29 +82,29 @@ class RobotAudit:
 
     def accounted(self) -> None:
         a, r = self.a, self.r
-        a.counts["robots"] += 1
+        a.count("robots")
         placed = r.get("placed")
         if not isinstance(placed, bool):
             self.find("unaccounted_robot", f"'placed' is {placed!r}, not true or false")
             return
-        a.counts["robots_placed" if placed else "robots_refused"] += 1
+        a.count("robots_placed" if placed else "robots_refused")
         if self.placements is None:  # no record of why: only a placed robot is accounted for
             if not placed and not (isinstance(r.get("refused"), str) and r["refused"].strip()):
                 self.find("unaccounted_robot", "not placed, and no reason given")
             return
         last_placed = None
         for j, p in enumerate(self.placements):
-            a.counts["placements"] += 1
+            a.count("placements")
             if p.get("index") != j:
                 self.find("schema", f"placements[{j}].index is {p.get('index')!r}")
             step = p.get("step")
             if (j == 0) != (step is None):
                 self.find("schema", f"placements[{j}].step is {step!r} (null only for the first)")
             if j > 0:
-                a.counts["replacements"] += 1
+                a.count("replacements")
             if p.get("placed") is True:
                 last_placed = j
-                a.counts["placements_placed"] += 1
+                a.count("placements_placed")
                 missing = [k for k in ("pose", "commanded_pose", "candidate_position", "target")
                            if k not in p]
                 if missing:
@@ -112,7 +112,7 @@ class RobotAudit:
             elif p.get("placed") is False:
                 why = p.get("refused")
                 if isinstance(why, str) and why.strip():
-                    a.refused[reason_key(why)] += 1
+                    a.count(reason_key(why), "refused")
                 else:
                     self.find("unaccounted_robot", f"placements[{j}] was not placed, and "
                               f"'refused' gives no reason ({why!r})")
@@ -121,7 +121,7 @@ class RobotAudit:
                           f"placements[{j}].placed is {p.get('placed')!r}, not true or false")
         why = self.placements[-1].get("refused")
         if not placed and isinstance(why, str) and why.strip():
-            a.refused_robots[reason_key(why)] += 1
+            a.count(reason_key(why), "refused_robots")
         index = r.get("placement")
         if placed and index != last_placed:
             self.find("unaccounted_robot", f"placed, at placement {index!r}, but the last "
@@ -142,7 +142,7 @@ class RobotAudit:
         dp, da = pose_gap(pose, self.at("final").camera_pose(self.camera))
         self.a.at_most("final_pose_m", dp)
         self.a.at_most("final_pose_deg", da)
-        self.a.counts["poses_checked"] += 1
+        self.a.count("poses_checked")
         if dp > POSE_TOL_M or da > POSE_TOL_DEG:
             self.find("pose_mismatch", f"reported pose is {dp * 1000:.3f} mm / {da:.4f} deg "
                       f"from camera '{self.camera}' at scene.xml's keyframe 'final'")
@@ -159,7 +159,7 @@ class RobotAudit:
                           self.at("look").camera_pose(self.camera))
         self.a.at_most("look_pose_m", dp)
         self.a.at_most("look_pose_deg", da)
-        self.a.counts["looks_checked"] += 1
+        self.a.count("looks_checked")
         if dp > LOOK_TOL_M or da > LOOK_TOL_DEG:
             self.find("look_mismatch", f"placements[{looked}].pose, where it looked from, is "
                       f"{dp * 1000:.3f} mm / {da:.4f} deg from camera '{self.camera}' at "
@@ -198,18 +198,18 @@ class RobotAudit:
             self.find("schema", f"{where}.correction has no 'status'")
             status = "failed" if c.get("failed") or "error_after" not in c else "corrected"
         if status in UNTRUSTED:
-            self.a.counts[f"corrections_{status}"] += 1
+            self.a.count(f"corrections_{status}")
             why = c.get("failed")
             if not (isinstance(why, str) and why.strip()):
                 self.find("correction_misreported", f"{where}: correction {status} without "
                           f"a reason ('failed' is {why!r})")
             else:
-                self.a.correction_failures[f"{status}: {reason_key(why)}"] += 1
+                self.a.count(f"{status}: {reason_key(why)}", "correction_failures")
             return
         if status != "corrected":
             self.find("schema", f"{where}.correction.status is {status!r}")
             return
-        self.a.counts["corrections_corrected"] += 1
+        self.a.count("corrections_corrected")
         after = c.get("error_after")
         if not isinstance(after, dict):
             self.find("correction_misreported", f"{where}: corrected, with no error_after")
@@ -263,7 +263,7 @@ class RobotAudit:
             pose = self.pose_of(what, s.get("placement"))
             if pose is None:
                 continue
-            self.a.counts["sightings_checked"] += 1
+            self.a.count("sightings_checked")
             self.sighting(scene, what, s.get("target"), s.get("pixel"), pose,
                           s.get("disparity_px"))
         if self.r.get("seen") is True:
@@ -277,7 +277,7 @@ class RobotAudit:
             pose = self.pose_of("the detection ('seen')", k)
             if pose is None or not isinstance(target, dict):
                 return
-            self.a.counts["seen_checked"] += 1
+            self.a.count("seen_checked")
             self.sighting(scene, "the detection ('seen')", target.get("name"),
                           self.r.get("pixel"), pose, None)
 

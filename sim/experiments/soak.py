@@ -150,6 +150,11 @@ class _Worker:
         self.job, self.started = job, time.monotonic()
         self.conn.send(job)
 
+    def finished(self) -> None:
+        """Its scene's record is in: free for the next."""
+        self.job = None
+        self.done += 1
+
     def stop(self, kill: bool = False) -> None:
         if kill:
             self.process.kill()
@@ -218,8 +223,7 @@ def run_scenes(jobs: list[Job], workdir: Path, workers: int = 2,
                 if record is None:
                     continue
                 yield record
-                w.job = None
-                w.done += 1
+                w.finished()
                 if replace or w.done >= recycle:
                     w.stop(kill=replace)
                     with one_thread_each():
