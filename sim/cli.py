@@ -65,24 +65,13 @@ def run(args: argparse.Namespace) -> int:
 
     resolve_gl_backend()  # this command renders: the GL backend before mujoco loads
     from sim.stages.episode import Episode  # imports mujoco: after the arguments are known good
-    from sim.stages.record import Recorder
-    from sim.world.scene import save_scene
+    from sim.stages.run_directory import write_run
 
     episode = Episode(scenario)  # builds the scene: the last check of the input
-    out.mkdir(parents=True, exist_ok=True)
-    recorder = Recorder(None if args.no_record else out / "run.rrd",
-                        recording_id=f"{scenario.name}-seed{scenario.seed}",
-                        unknown=args.record_unknown)
     start = time.perf_counter()
     _log(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
          f"{scenario.robots.count} robot(s)")
-    try:
-        summary, scenes = episode.run(recorder)
-    finally:
-        recorder.close()
-    for name, (xml, files) in scenes.items():
-        save_scene(out, xml, files, name)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    summary = write_run(episode, out, not args.no_record, args.record_unknown)
     for robot in summary["robots"]:
         target = robot.get("target", {}).get("name", "-")
         _log(f"{robot['name']}: placed={robot['placed']} target={target} seen={robot['seen']}")

@@ -1,8 +1,8 @@
-"""The soak's scenes: draw a random valid scenario (sim/experiments/random_scenario.py), write it as
-a TOML file, run it as a user would (``taskcam run FILE --out DIR``, through the CLI's
-own function, in a worker process) and audit the run directory (sim/experiments/audit.py).
+"""The soak's scenes: draw a random valid scenario (sim/experiments/random_scenario.py),
+write it as a TOML file, run it as a user would (as ``taskcam run FILE --out DIR`` runs
+it, in a worker process) and audit the run directory (sim/experiments/audit.py).
 
-A draw the CLI rejects as invalid input (exit 2: the scenario parser or the scene
+A draw the command rejects as invalid input (exit 2: the scenario parser or the scene
 builder) is discarded, its reason (the key named) counted, and the next draw of the
 scene tried. A run that fails (exit 1) is a ``traceback`` finding with the traceback.
 Each scene gives one JSON-able record; :func:`run_scenes` runs many on worker
@@ -13,7 +13,6 @@ processes (a scene that kills its worker is a ``crash``, one that overruns a
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import multiprocessing
 import re
@@ -28,27 +27,34 @@ from typing import Any
 
 import numpy as np
 
-from sim.cli import main
 from sim.config.scenario import load_scenario
+from sim.config.schema import ScenarioError
 from sim.experiments.audit import audit_run
 from sim.experiments.audit_findings import Finding
 from sim.experiments.random_scenario import SIZES, draw_scenario, is_heavy, to_toml
 from sim.experiments.runner import _worker_init, one_thread_each
+from sim.stages.episode import Episode
+from sim.stages.run_directory import write_run
 
 MAX_DRAWS = 25  # draws tried for one scene before it counts as having none valid
 _KEY = re.compile(r"key '([^']*)'")
 
 
 def run_file(path: Path, out: Path) -> tuple[int, str]:
-    """``taskcam run PATH --out OUT --no-record`` in this process: exit code, stderr."""
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err):
-        try:
-            code = main(["run", str(path), "--out", str(out), "--no-record"])
-        except (Exception, SystemExit):  # a failure the CLI let through: the soak goes on
-            traceback.print_exc(file=err)
-            code = 1
-    return code, err.getvalue()
+    """The scenario file run as ``taskcam run PATH --out OUT --no-record`` runs it, in this
+    process (sim.stages.run_directory.write_run): its exit code (0, 2 for invalid input,
+    1 for a failure) and what it said."""
+    try:
+        episode = Episode(load_scenario(path))  # checks the file, then the scene
+    except ScenarioError as exc:
+        return 2, f"taskcam: error: {exc}\n"
+    except Exception:  # a failure the checks let through: the soak goes on
+        return 1, traceback.format_exc()
+    try:
+        write_run(episode, out, record=False)
+    except Exception:
+        return 1, traceback.format_exc()
+    return 0, ""
 
 
 def discard_reason(stderr: str) -> str:
