@@ -177,10 +177,14 @@ def frame_matrix(frame: dict[str, Any]) -> np.ndarray:
 def in_measured_frame(point: np.ndarray, targets: tuple[Target, ...],
                       measured: dict[str, Any]) -> np.ndarray:
     """Where a point of the work-piece's CAD model (world, nominal) is, given the target
-    frame the robots measured: its place relative to the targets carried over."""
-    nominal = common_frame([Sighting("cad", t.name, (0.0, 0.0), 0.0, 1.0, t.position)
-                            for t in targets], targets)["frame"]
-    if measured.get("frame") is None or nominal is None:
+    frame the robots measured: its place relative to the targets carried over. The
+    nominal frame is built from the targets that were measured, as the measured one was
+    (without a secondary target both take their x axis the same way, and the work-piece's
+    yaw stays unmeasured rather than turned by the angle to an unseen target)."""
+    if measured.get("frame") is None:  # the primary unmeasured: the nominal place
         return np.asarray(point, float)
+    seen = tuple(t for t in targets if t.name in measured["targets"])
+    nominal = common_frame([Sighting("cad", t.name, (0.0, 0.0), 0.0, 1.0, t.position)
+                            for t in seen], seen)["frame"]
     moved = frame_matrix(measured["frame"]) @ np.linalg.inv(frame_matrix(nominal))
     return moved[:3, :3] @ point + moved[:3, 3]

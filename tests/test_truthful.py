@@ -11,7 +11,13 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.target_frame import Sighting, common_frame, search_slack_px, sight
+from calibration.target_frame import (
+    Sighting,
+    common_frame,
+    in_measured_frame,
+    search_slack_px,
+    sight,
+)
 from calibration.targets import Target
 from mapping import Pinhole
 from sim.config.scenario import load_scenario, parse_scenario
@@ -136,3 +142,23 @@ def test_a_target_is_claimed_only_where_the_camera_can_tell_it_apart():
     assert seen(1.0) is None  # two holes in the window: a guess
     told = seen(1.0, (beside,))
     assert told is not None and np.allclose(told.pixel, exact.pixel)
+
+
+def test_without_a_secondary_sighting_the_slot_moves_with_the_primary_only():
+    """The primary seen 1 cm off its nominal place and no secondary: the slot moves by
+    that 1 cm and does not turn (before, the measured frame took its x axis from the
+    world and the nominal one toward the unseen secondary, turning the slot by the
+    angle between them, 0.1 m and more)."""
+    targets = _targets()
+    primary = next(t for t in targets if t.role == "primary")
+    secondary = next(t for t in targets if t.role == "secondary")
+    shift = np.array([0.01, 0.0, 0.0])
+    seen = [Sighting("r1", primary.name, (0.0, 0.0), 10.0, 1.0, primary.position + shift)]
+    point = secondary.position + np.array([0.05, 0.2, 0.0])  # a slot-like point away from both
+    moved = in_measured_frame(point, targets, common_frame(seen, targets))
+    assert np.allclose(moved, point + shift, atol=1e-9)
+    both = seen + [Sighting("r1", secondary.name, (0.0, 0.0), 10.0, 1.0,
+                            secondary.position + shift)]
+    assert np.allclose(in_measured_frame(point, targets, common_frame(both, targets)),
+                       point + shift, atol=1e-9)
+    assert np.allclose(in_measured_frame(point, targets, common_frame([], targets)), point)

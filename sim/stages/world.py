@@ -162,7 +162,7 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
     with timer("build"):
         scene = build_scene(scenario)
     model = copy.deepcopy(scene.model)
-    workpiece_error = _misplace_workpiece(scenario, model, rng)
+    workpiece_error = misplace_workpiece(scenario, model, rng)
     data = scene.make_data()
     belief = scene.make_data()
     errors = ErrorModel(scenario.motion, scene.robots, rng)
@@ -174,7 +174,7 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
     return world
 
 
-def _misplace_workpiece(s: Scenario, model: mujoco.MjModel, rng: np.random.Generator
+def misplace_workpiece(s: Scenario, model: mujoco.MjModel, rng: np.random.Generator
                         ) -> np.ndarray:
     """Move the work-piece in ``model`` off where the planner believes it (by the
     scenario's errors); returns (dx, dy, dyaw) in m, m, rad."""
