@@ -226,19 +226,30 @@ def markdown(rows: list[dict[str, Any]], name: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _floats(text: str) -> tuple[float, ...]:
+    return tuple(float(v) for v in text.split(","))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="5 views a cell")
     parser.add_argument("--views", type=int, default=None, help="views a cell (default 50)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--distances", type=_floats, default=DISTANCES,
+                        help="only these distances (m, comma-separated); results not written")
+    parser.add_argument("--angles", type=_floats, default=ANGLES, help="only these angles")
+    parser.add_argument("--occlusions", type=_floats, default=OCCLUSIONS,
+                        help="only these occlusions")
     args = parser.parse_args()
+    whole = (tuple(args.distances), tuple(args.angles), tuple(args.occlusions)) == (
+        DISTANCES, ANGLES, OCCLUSIONS)
     n = args.views or (5 if args.quick else 50)
     rng = np.random.default_rng(args.seed)
     started = time.perf_counter()
     rows: list[dict[str, Any]] = []
     records: list[dict[str, Any]] = []
     site = Site(rng)
-    cells = [(d, a, o) for d in DISTANCES for a in ANGLES for o in OCCLUSIONS]
+    cells = [(d, a, o) for d in args.distances for a in args.angles for o in args.occlusions]
     try:
         for i, (d, a, o) in enumerate(cells):
             t0 = time.perf_counter()
@@ -251,9 +262,11 @@ def main() -> None:
     print_rows(rows)
     for name in MEASUREMENTS:
         print(f"\n{name}, as docs/measurement.md's table:\n\n{markdown(rows, name)}")
-    print(f"\ngrid {len(DISTANCES)} distances x {len(ANGLES)} angles x {len(OCCLUSIONS)} "
-          f"occlusions = {len(cells)} cells x {n} views = {len(cells) * n} views; "
-          f"{seconds:.0f} s")
+    print(f"\ngrid {len(args.distances)} distances x {len(args.angles)} angles x "
+          f"{len(args.occlusions)} occlusions = {len(cells)} cells x {n} views = "
+          f"{len(cells) * n} views; {seconds:.0f} s")
+    if not whole:
+        return
     path = write_results(
         "measurement", rows, measurements=list(MEASUREMENTS), views_per_cell=n, seed=args.seed,
         grid={"distances_m": DISTANCES, "angles_deg": ANGLES, "occlusions": OCCLUSIONS},

@@ -36,6 +36,7 @@ from sim.config.scenario import ObstacleConfig, Scenario
 from sim.config.sweep import load_sweep
 from sim.stages.look import target_sd
 from sim.stages.record import Recorder
+from sim.stages.relative import PanelBelief, RelativeMeasurer, believed_slot
 from sim.stages.task import InsertionTask
 from sim.stages.task_result import Camera
 from sim.stages.world import misplace_workpiece, new_grid
@@ -51,6 +52,7 @@ TABLE1 = Path(__file__).resolve().parent.parent / "scenarios" / "table1.toml"
 POSE_SD_M = 0.001  # the pose correction's residual (RMS of the 3-D error), issue 6
 POSE_SD_DEG = 0.1
 GUESS_SD_M = 0.01  # the fit starts this far off (per axis): a previous measurement's error
+GUESS_SD_RAD = math.radians(1.0)  # what the relative fit is told of the guess's orientation
 DISPLACEMENT_XY_M = 0.02  # the panel's true displacement: uniform within +-this across ...
 DISPLACEMENT_Z_M = (0.035, 0.06)  # ... and this high above the slot (rails' top: 0.03)
 AZIMUTH_SPREAD_DEG = 45.0  # views within this of the panel's face normal (either side)
@@ -179,6 +181,9 @@ class Site:
         nominal = self.scene.make_data()
         mujoco.mj_forward(self.scene.model, nominal)
         self.nominal_slot = nominal.site("workpiece/slot").xpos.copy()  # in the CAD model
+        self.nominal_slot_pose = np.eye(4)
+        self.nominal_slot_pose[:3, :3] = nominal.site("workpiece/slot").xmat.reshape(3, 3)
+        self.nominal_slot_pose[:3, 3] = self.nominal_slot
         self.panel_quat = nominal.mocap_quat[0].copy()
         self.robot = self.scene.robots[0]
         self.pinhole = camera_pinhole(m, self.robot.camera)
@@ -287,14 +292,11 @@ def hole_state(site: Site, view: View) -> str:
     return "in view" if seen else "hidden"
 
 
-def absolute(site: Site, view: View) -> Measured:
-    """Today's measurement: the panel as ``InsertionTask.measure`` fits it from this
-    camera's SGBM points through its believed pose; the slot where the holes' frame,
-    sighted in the same (blurred) images through that pose, puts the slot's CAD place."""
-    s, robot, task = site.scenario, site.robot, site.task
-    task.renderer = _SameImages(site.renderer, view)
-    camera = Camera(robot, view.believed, POSE_SD_M, "corrected")
-    pose, why = task.measure([camera], view.guess)
+def holes_frame(site: Site, view: View) -> tuple[dict, int]:
+    """The target frame the holes sighted in the view's (blurred) pair put through the
+    believed pose (``sight`` and ``common_frame``, the episode's code), and how many of
+    the targets were sighted."""
+    s, robot = site.scenario, site.robot
     targets = site.scene.targets
     sightings = []
     for t in targets:
@@ -303,19 +305,63 @@ def absolute(site: Site, view: View) -> Measured:
                       rotation_sd_deg=POSE_SD_DEG, others=tuple(o for o in targets if o is not t))
         if found is not None:
             sightings.append(dataclasses.replace(found, sd_m=POSE_SD_M))
-    frame = common_frame(sightings, targets)
+    return common_frame(sightings, targets), len(sightings)
+
+
+def _slot_note(site: Site, view: View, frame: dict, sighted: int) -> tuple[str | None, str | None]:
+    """Why the slot is unknown (no primary sighting), and a note if a target was missed."""
+    if frame["frame"] is None:
+        return f"slot: primary hole not sighted in stereo ({hole_state(site, view)})", None
+    return None, None if sighted == len(site.scene.targets) else "secondary hole not sighted"
+
+
+def absolute(site: Site, view: View) -> Measured:
+    """Today's measurement: the panel as ``InsertionTask.measure`` fits it from this
+    camera's SGBM points through its believed pose; the slot where the holes' frame,
+    sighted in the same (blurred) images through that pose, puts the slot's CAD place."""
+    robot, task = site.robot, site.task
+    task.renderer = _SameImages(site.renderer, view)
+    camera = Camera(robot, view.believed, POSE_SD_M, "corrected")
+    pose, why = task.measure([camera], view.guess)
+    frame, sighted = holes_frame(site, view)
+    unknown, note = _slot_note(site, view, frame, sighted)
     reasons = []
     if pose is None:
         reasons.append("panel: " + "; ".join(sorted(set(why.values()))))
-    if frame["frame"] is None:
-        reasons.append(f"slot: primary hole not sighted in stereo ({hole_state(site, view)})")
-    if reasons:
+    if unknown is not None:
+        reasons.append(unknown)
+    if reasons or pose is None:
         return Measured(None, " | ".join(reasons))
-    slot = in_measured_frame(site.nominal_slot, targets, frame)
+    slot = in_measured_frame(site.nominal_slot, site.scene.targets, frame)
     panel = pose[:3, 3]
-    note = None if len(sightings) == len(targets) else "secondary hole not sighted"
     return Measured(panel - slot, note, panel, slot)
 
 
+def relative(site: Site, view: View) -> Measured:
+    """The relative measurement (issue 19), as the task makes it at a step: the panel's
+    CAD model and the slot's walls fitted to the edges of this camera's own pair
+    (``InsertionTask.measure_relative``), the panel from the view's starting guess (1 cm
+    off, as a previous measurement leaves it), the slot from where the holes' frame puts
+    it (the episode's ``believed_slot``)."""
+    s, robot, task = site.scenario, site.robot, site.task
+    frame, sighted = holes_frame(site, view)
+    unknown, note = _slot_note(site, view, frame, sighted)
+    if unknown is not None:
+        return Measured(None, unknown)
+    slot = believed_slot(site.nominal_slot_pose, site.scene.targets, frame,
+                         s.workpiece.yaw_error_deg)
+    task.renderer = _SameImages(site.renderer, view)
+    camera = Camera(robot, view.believed, POSE_SD_M, "corrected")
+    measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes, slot)
+    belief = PanelBelief(view.guess.copy(), GUESS_SD_M, np.eye(3) / GUESS_SD_RAD ** 2)
+    found = task.measure_relative([camera], measurer, belief)
+    if found.fused is None or found.panel is None:
+        return Measured(None, "; ".join(f"{n}: {w}" for n, w in found.why.items()))
+    d = found.fused.displacement
+    panel = found.panel[:3, 3]
+    return Measured(d, note, panel, panel - d)
+
+
 # name -> measurement; each runs on every view
-MEASUREMENTS: dict[str, Callable[[Site, View], Measured]] = {"absolute": absolute}
+MEASUREMENTS: dict[str, Callable[[Site, View], Measured]] = {"absolute": absolute,
+                                                              "relative": relative}

@@ -174,17 +174,24 @@ def frame_matrix(frame: dict[str, Any]) -> np.ndarray:
     return T
 
 
-def in_measured_frame(point: np.ndarray, targets: tuple[Target, ...],
-                      measured: dict[str, Any]) -> np.ndarray:
-    """Where a point of the work-piece's CAD model (world, nominal) is, given the target
-    frame the robots measured: its place relative to the targets carried over. The
-    nominal frame is built from the targets that were measured, as the measured one was
-    (without a secondary target both take their x axis the same way, and the work-piece's
-    yaw stays unmeasured rather than turned by the angle to an unseen target)."""
+def frame_motion(targets: tuple[Target, ...], measured: dict[str, Any]) -> np.ndarray:
+    """The rigid motion (4x4, world) that carries the work-piece's CAD model (nominal) to
+    where the target frame the robots measured puts it; identity when the primary target
+    was not measured. The nominal frame is built from the targets that were measured, as
+    the measured one was (without a secondary target both take their x axis the same
+    way, and the work-piece's yaw stays unmeasured rather than turned by the angle to an
+    unseen target)."""
     if measured.get("frame") is None:  # the primary unmeasured: the nominal place
-        return np.asarray(point, float)
+        return np.eye(4)
     seen = tuple(t for t in targets if t.name in measured["targets"])
     nominal = common_frame([Sighting("cad", t.name, (0.0, 0.0), 0.0, 1.0, t.position)
                             for t in seen], seen)["frame"]
-    moved = frame_matrix(measured["frame"]) @ np.linalg.inv(frame_matrix(nominal))
-    return moved[:3, :3] @ point + moved[:3, 3]
+    return frame_matrix(measured["frame"]) @ np.linalg.inv(frame_matrix(nominal))
+
+
+def in_measured_frame(point: np.ndarray, targets: tuple[Target, ...],
+                      measured: dict[str, Any]) -> np.ndarray:
+    """Where a point of the work-piece's CAD model (world, nominal) is, given the target
+    frame the robots measured (:func:`frame_motion`)."""
+    moved = frame_motion(targets, measured)
+    return moved[:3, :3] @ np.asarray(point, float) + moved[:3, 3]

@@ -1,6 +1,7 @@
 """Occupancy mapping: voxel grid, sensor model, depth integration. Free of MuJoCo."""
 
-from .cad import BoxModel, fit_model, move_object, voxels_of
+from .cad import BoxModel, fit_model, move_object, occupancy_of, pose_covariance, voxels_of
+from .cad_prior import LyingPose, Misplacement, fit_lying_pose, lying_pose, support_layer
 from .camera import (
     MUJOCO_TO_OPENCV,
     Pinhole,
@@ -22,7 +23,9 @@ __all__ = [
     "MUJOCO_TO_OPENCV",
     "BoxModel",
     "GainModel",
+    "LyingPose",
     "MappingError",
+    "Misplacement",
     "OccupancyGrid",
     "Pinhole",
     "SensorModel",
@@ -30,17 +33,22 @@ __all__ = [
     "View",
     "camera_to_world",
     "first_hits",
+    "fit_lying_pose",
     "fit_model",
     "integrate_depth",
     "logit",
+    "lying_pose",
     "mark_free_image",
     "mean_entropy",
     "move_object",
     "mujoco_pose",
+    "occupancy_of",
     "opencv_pose",
+    "pose_covariance",
     "region_mask",
     "stereo_depth",
     "stored_log_odds",
+    "support_layer",
     "traverse",
     "view_rays",
     "voxels_of",

@@ -11,6 +11,12 @@ Rather than remap the scene whenever an object with a known model moves:
 A model is a union of boxes in the object's frame; poses are 4x4 ``T_world_object``.
 A voxel belongs to the model when the model passes within half a voxel diagonal of its
 centre (the voxel touches it), as a sensor would have mapped it.
+
+A pose may come with a covariance (6x6: a rotation vector in the world frame applied on
+the left, then the translation): its voxels then carry that uncertainty, the probability
+that the model touches each (:func:`occupancy_of`), in freeing and occupying alike
+(:func:`move_object`). Where the object lies before its first move comes from the map
+(mapping/cad_prior.py).
 """
 
 from __future__ import annotations
@@ -22,8 +28,10 @@ import numba as nb
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+from scipy.special import ndtr
 
-from .grid import OccupancyGrid
+from .errors import MappingError
+from .grid import LOG_ODDS_SCALE, OccupancyGrid, stored_log_odds
 
 FREE_SPACE_M = 0.004  # how far in front of a seen point the camera's ray counts as free
 
@@ -163,7 +171,9 @@ def _left_jacobian(w: np.ndarray) -> np.ndarray:
 def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
               viewpoints: np.ndarray | None = None,
               loss_scales_m: tuple[float, ...] = (0.02, 0.005),
-              give_up_median_m: float = np.inf) -> tuple[np.ndarray, float]:
+              give_up_median_m: float = np.inf,
+              free: tuple[bool, bool, bool, bool, bool, bool] | None = None
+              ) -> tuple[np.ndarray, float]:
     """The pose (4x4) that puts the world points (n, 3) on the model's surface, from
     ``initial``; and the RMS distance (m) of the points to it. Robust (soft-L1) against
     the odd point that is not the object's, coarse to fine: the first loss scale lets a
@@ -173,8 +183,14 @@ def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
 
     With ``viewpoints`` (n, 3: the camera centre that saw each point) the space just in
     front of each point, which the camera saw through, must be outside the model: the
-    points lie on the faces turned to the camera, not on the far side of a thin part."""
+    points lie on the faces turned to the camera, not on the far side of a thin part.
+
+    ``free`` says which of the six parameters the fit may change (a rotation vector in
+    the world frame applied on the left, then the world translation): (False, False,
+    True, True, True, False) fits only the yaw and the horizontal place of an object
+    resting on a level support. None: all six."""
     pose = np.array(initial, dtype=float)
+    chosen = np.ones(6, bool) if free is None else np.array(free, bool)
     ahead = None
     if viewpoints is not None:
         toward = viewpoints - points
@@ -199,33 +215,141 @@ def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
                 last[key] = _residuals(model, pose_of(x), points, ahead)
             return last[key]
 
+        def full(x: np.ndarray) -> np.ndarray:
+            if chosen.all():
+                return x
+            every = np.zeros(6)
+            every[chosen] = x
+            return every
+
         def residuals(x: np.ndarray, evaluate: Any = evaluate) -> np.ndarray:
-            return evaluate(x)[0]
+            return evaluate(full(x))[0]
 
         def jacobian(x: np.ndarray, evaluate: Any = evaluate) -> np.ndarray:
-            return evaluate(x)[1] @ _left_jacobian(x[:3])
+            x = full(x)
+            return (evaluate(x)[1] @ _left_jacobian(x[:3]))[:, chosen]
 
-        found = least_squares(residuals, np.zeros(6), jac=jacobian, loss="soft_l1",
-                              f_scale=scale, x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05]),
+        found = least_squares(residuals, np.zeros(int(chosen.sum())), jac=jacobian,
+                              loss="soft_l1", f_scale=scale,
+                              x_scale=np.array([0.1, 0.1, 0.1, 0.05, 0.05, 0.05])[chosen],
                               max_nfev=MAX_EVALUATIONS)
-        pose = pose_of(found.x)
+        pose = pose_of(full(found.x))
         distances = model.distance(to_object(pose, points))
         if np.median(np.abs(distances)) >= give_up_median_m:
             break
     return pose, float(np.sqrt(np.mean(distances ** 2)))
 
 
+def pose_covariance(position_sd_m: float | np.ndarray, rotation_sd_rad: float | np.ndarray
+                    ) -> np.ndarray:
+    """A pose's 6x6 covariance from standard deviations (a scalar or one per world axis)
+    of its rotation vector (rad, applied on the left: the world frame) and its position
+    (m), in :func:`fit_model`'s order: rotation first, then translation."""
+    sd = np.concatenate([np.broadcast_to(np.asarray(rotation_sd_rad, float), 3),
+                         np.broadcast_to(np.asarray(position_sd_m, float), 3)])
+    return np.diag(sd ** 2)
+
+
+SPREAD_SDS = 4.0  # voxels this many of their own standard deviations beyond reach: P ~ 0
+
+
+def _reach(grid: OccupancyGrid) -> float:
+    """A voxel is touched by a model passing this close to its centre: half its diagonal."""
+    return 0.5 * np.sqrt(3) * grid.resolution
+
+
+def occupancy_of(grid: OccupancyGrid, model: BoxModel, pose: np.ndarray,
+                 covariance: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The voxels (indices, (n, 3)) the model at an uncertain ``pose`` may touch and the
+    probability (n,) that it does. The covariance (6x6, rotation vector on the left then
+    translation, world frame, as :func:`pose_covariance`) moves the model's signed
+    distance to a voxel's centre by a standard deviation sigma = sqrt(J C J^T), J its
+    derivative by the pose there (the rotation's share grows with the voxel's lever arm);
+    linearised, P(touched) = P(distance <= reach) = Phi((reach - d) / sigma), reach half
+    a voxel diagonal as in :func:`voxels_of`: 0.5 where the model at ``pose`` just
+    reaches the voxel (its surface half a voxel diagonal from the centre, not on it:
+    so that a zero sd is exactly voxels_of, and a 1 cm panel in 5 cm voxels, whose centres
+    lie outside it, keeps its voxels), falling across that boundary. With no (or a
+    zero) covariance the probability is 1 on exactly the voxels of :func:`voxels_of`
+    (and they alone are returned)."""
+    reach = _reach(grid)
+    C = np.zeros((6, 6)) if covariance is None else np.asarray(covariance, float)
+    if C.shape != (6, 6):
+        raise MappingError(f"a pose covariance is 6x6 (rotation vector, then translation), "
+                           f"got shape {C.shape}")
+    if not C.any():
+        idx = np.argwhere(voxels_of(grid, model, pose))
+        return idx, np.ones(len(idx))
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    local = np.concatenate([c + corners * h for c, h in zip(model.centres, model.halves,
+                                                              strict=True)])
+    world = local @ pose[:3, :3].T + pose[:3, 3]
+    # a bound on sigma within ``margin`` of the model: |J| <= sqrt(1 + arm^2), the
+    # largest eigenvalue of C for the rest; the margin grows with the arms it reaches
+    biggest = float(np.linalg.eigvalsh(C)[-1])
+    lever = float(np.max(np.linalg.norm(world - pose[:3, 3], axis=1)))
+    limit = float(np.max(np.array(grid.shape) * grid.resolution))  # the grid's extent
+    margin = reach
+    for _ in range(20):
+        wider = min(reach + SPREAD_SDS * np.sqrt(biggest * (1 + (lever + margin) ** 2)), limit)
+        if wider - margin < 1e-4:
+            break
+        margin = wider
+    first, last = grid.index(world.min(axis=0) - margin), grid.index(world.max(axis=0) + margin)
+    if np.any(last < 0) or np.any(first >= np.array(grid.shape)):  # wholly outside the grid
+        return np.zeros((0, 3), np.int64), np.zeros(0)
+    lo, hi = (np.clip(i, 0, np.array(grid.shape) - 1) for i in (first, last))
+    ranges = [np.arange(a, b + 1) for a, b in zip(lo, hi, strict=True)]
+    idx = np.stack(np.meshgrid(*ranges, indexing="ij"), -1).reshape(-1, 3)
+    centres = grid.centers(idx)
+    arm = centres - pose[:3, 3]
+    d, g = model.distance_and_gradient(arm @ pose[:3, :3])
+    J = _tangent_rows(g @ pose[:3, :3].T, arm)
+    sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, C, J), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = np.where(sigma > 0, ndtr((reach - d) / np.where(sigma > 0, sigma, 1.0)),
+                     (d <= reach).astype(float))
+    keep = p > ndtr(-SPREAD_SDS)
+    return idx[keep], p[keep]
+
+
 def move_object(grid: OccupancyGrid, model: BoxModel, old: np.ndarray | None,
-                new: np.ndarray | None) -> tuple[int, int]:
+                new: np.ndarray | None, old_covariance: np.ndarray | None = None,
+                new_covariance: np.ndarray | None = None, keep: np.ndarray | None = None
+                ) -> tuple[int, int]:
     """Step 1 and 4: the voxels of the object at ``old`` become free, those at ``new``
-    occupied (either may be None); returns how many voxels were freed and occupied."""
+    occupied (either may be None); returns how many voxels were freed and occupied
+    (those the object at that pose touches with probability at least 0.5).
+
+    A pose's covariance (6x6, as :func:`occupancy_of`; None: certain) spreads its
+    voxels' probabilities over the boundary (:func:`occupancy_of`, p_old and p_new).
+    Freeing sets a voxel to p_old clamp_min + (1 - p_old) p: free where the object
+    certainly was, unchanged where it certainly was not, between where it may have been.
+    Occupying raises a voxel to p_new (clipped to the clamps), never lowers it: the
+    object's pose is no evidence that what else is there has gone. A voxel the new pose
+    touches ends at least at p_new, whatever freeing the old did to it. Voxels in the
+    boolean mask ``keep`` (grid shape; the surface the object lay on, say) are not freed.
+    Without covariances this is the certain update: clamp_min on the voxels of
+    :func:`voxels_of` at ``old``, then clamp_max on those at ``new``."""
+    lo_min, lo_max = (int(stored_log_odds(p))
+                      for p in (grid.model.clamp_min, grid.model.clamp_max))
     freed = occupied = 0
     if old is not None:
-        was = voxels_of(grid, model, old)
-        grid.set_probability(grid.model.clamp_min, was)
-        freed = int(was.sum())
+        idx, p = occupancy_of(grid, model, old, old_covariance)
+        if keep is not None:
+            spared = np.asarray(keep, bool)[tuple(idx.T)]
+            idx, p = idx[~spared], p[~spared]
+        where = tuple(idx.T)
+        before = grid.log_odds[where].astype(float) / LOG_ODDS_SCALE
+        after = p * grid.model.clamp_min + (1 - p) / (1 + np.exp(-before))
+        stored = np.where(p >= 1.0, lo_min, stored_log_odds(np.clip(after, 1e-9, 1 - 1e-9)))
+        grid.log_odds[where] = stored.astype(np.int16)
+        freed = int(np.sum(p >= 0.5))
     if new is not None:
-        now = voxels_of(grid, model, new)
-        grid.set_probability(grid.model.clamp_max, now)
-        occupied = int(now.sum())
+        idx, p = occupancy_of(grid, model, new, new_covariance)
+        where = tuple(idx.T)
+        clipped = np.clip(p, grid.model.clamp_min, grid.model.clamp_max)
+        raised = np.where(p >= 1.0, lo_max, stored_log_odds(clipped))
+        grid.log_odds[where] = np.maximum(grid.log_odds[where], raised).astype(np.int16)
+        occupied = int(np.sum(p >= 0.5))
     return freed, occupied

@@ -25,7 +25,7 @@ from .search import (
     search,
     target_points,
 )
-from .tfv import ClearanceMap, clearance_map, hull_depths
+from .tfv import ClearanceMap, clearance_map, distance_level, hull_depths, tfv_at
 from .visibility import line_of_sight
 
 __all__ = [
@@ -48,6 +48,7 @@ __all__ = [
     "clearance_map",
     "depth_of_field",
     "detectable",
+    "distance_level",
     "expand",
     "expanded_hulls",
     "grid_occluders",
@@ -61,4 +62,5 @@ __all__ = [
     "search",
     "target_outline",
     "target_points",
+    "tfv_at",
 ]

@@ -28,6 +28,7 @@ sight line against the hulls, so that TFV > 0 means "every hull clears the cone"
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -307,3 +308,61 @@ def clearance_map(target: np.ndarray, hulls: list[Hull], near: float, far: float
     clearance = _clearance(dirs, np.ascontiguousarray(dirs[occluded[order]]), first[order],
                            levels)
     return ClearanceMap(ladder, clearance, depth, directions, target, packed, cone)
+
+
+@nb.njit(cache=True)
+def _clearance_at(offsets: np.ndarray, levels: np.ndarray, table: np.ndarray,
+                  dirs: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Clearance / pi of each offset as :func:`_lookup` reads it from the table
+    :func:`_clearance` builds, computed for its own level and direction only."""
+    out = np.empty(len(offsets))
+    na, npol = table.shape
+    for i in range(len(offsets)):
+        x, y, z = offsets[i, 0], offsets[i, 1], offsets[i, 2]
+        d = np.sqrt(x * x + y * y + z * z)
+        k = min(np.searchsorted(levels, d), len(levels) - 1)
+        az = np.arctan2(y, x)
+        pol = np.arccos(min(max(z / max(d, 1e-12), -1.0), 1.0))
+        a = min(max(int((az + np.pi) / (2 * np.pi) * na), 0), na - 1)
+        p = min(max(int(pol / np.pi * npol), 0), npol - 1)
+        j = table[a, p]
+        best = -1.0  # cosine of the nearest direction occluded closer than level k
+        for m in range(len(dirs)):
+            if depth[m] < levels[k]:
+                c = dirs[j, 0] * dirs[m, 0] + dirs[j, 1] * dirs[m, 1] + dirs[j, 2] * dirs[m, 2]
+                if c > best:
+                    best = c
+        out[i] = (0.0 if best > 1.0 - 1e-12 else np.arccos(max(best, -1.0))) / np.pi
+    return out
+
+
+def distance_level(distance: float, near: float, far: float, levels: int = 48) -> float:
+    """The distance (m) a camera ``distance`` from the target is rated at: the first of
+    the ``levels`` from ``near`` to ``far`` at or beyond it (the last, beyond ``far``),
+    as ``ClearanceMap.tfv`` and :func:`tfv_at` take it."""
+    ladder = np.linspace(near, far, levels)
+    return float(ladder[min(int(np.searchsorted(ladder, distance)), levels - 1)])
+
+
+def tfv_at(target: np.ndarray, depth: np.ndarray, offsets: np.ndarray, near: float,
+           far: float, hulls: PackedHulls | Callable[[], PackedHulls], levels: int = 48,
+           directions: int = 16384, cone: bool = True) -> np.ndarray:
+    """TFV in [0, 1] of cameras at ``offsets`` (n, 3) from ``target``, given the depth
+    (m) from which each sphere direction is occluded (``hull_depths`` over ``directions``
+    with ``limit=far``): what ``clearance_map(...).tfv(offsets)`` gives, without the
+    table of every direction's clearance, so cheap for a few cameras (each scans the
+    sphere once). ``depth`` is only compared with the distance level of each camera
+    (the first of ``levels`` from ``near`` to ``far`` at or beyond it): for cameras at
+    one level, 0 for the directions occluded from it and inf for the others will do.
+    ``hulls`` (or a function making them, called only if needed) are the hulls
+    ``depth`` came from, for the exact check near the occlusion boundary."""
+    dirs, table = sphere(directions)
+    offsets = np.ascontiguousarray(offsets, dtype=np.float64).reshape(-1, 3)
+    ladder = np.linspace(near, far, levels)
+    tfv = _clearance_at(offsets, ladder, table, dirs, np.ascontiguousarray(depth, np.float64))
+    margin = 2.0 * np.sqrt(4 * np.pi / directions) / np.pi  # as ClearanceMap.tfv
+    close = np.flatnonzero((tfv > 0) & (tfv < margin))
+    if len(close):
+        packed = hulls if isinstance(hulls, PackedHulls) else hulls()
+        tfv[close[packed.occluded(np.asarray(target, float), offsets[close], cone)]] = 0.0
+    return tfv

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import mujoco
 import numpy as np
@@ -13,10 +14,11 @@ import pytest
 from rerun.chunk import RrdReader
 
 from calibration.panel import panel_mask
-from mapping import Pinhole, voxels_of
+from mapping import LyingPose, Pinhole, pose_covariance, voxels_of
 from sim.config.scenario import ObstacleConfig, Scenario, load_scenario
 from sim.experiments.audit import audit_run
 from sim.stages.record import Recorder
+from sim.stages.relative import SlotBelief
 from sim.stages.task import (
     BLUR_MARGIN_PX,
     MIN_POINTS,
@@ -60,19 +62,36 @@ def run_task(obstacles: tuple[ObstacleConfig, ...] = (), seed: int = 0, replace=
     base = load_scenario()
     s = dataclasses.replace(base, obstacles=obstacles, seed=seed,
                             task=dataclasses.replace(base.task, enabled=True))
-    scene, robot, data, slot = looking_at_the_slot(s)
+    scene, robot, data, _ = looking_at_the_slot(s)
     pinhole = camera_pinhole(scene.model, robot.camera)
     with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
         task = new_task(s, scene, data, renderer, pinhole, seed)
-        result = task.run([Camera(robot, camera_pose(data, robot.camera))], slot, replace)
+        result = task.run([Camera(robot, camera_pose(data, robot.camera))],
+                          slot_belief_at(data), lying_at(task.panel), replace)
     return result, task
+
+
+def lying_at(pose: np.ndarray, sd: tuple[float, float] = (0.01, math.radians(1.0))) -> LyingPose:
+    """The panel lying at ``pose``, known to ``sd`` (m, rad per axis)."""
+    return LyingPose(pose.copy(), pose_covariance(sd[0], sd[1]), "nominal", "test",
+                     float(pose[2, 3]))
+
+
+def slot_belief_at(data: mujoco.MjData, sd: tuple[float, float] = (0.002, 0.01)
+                   ) -> SlotBelief:
+    """The slot's true frame, believed with the holes' frame's uncertainty."""
+    site = data.site("workpiece/slot")
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = site.xmat.reshape(3, 3), site.xpos
+    return SlotBelief(pose, sd)
 
 
 def test_a_well_placed_camera_guides_the_panel_in():
     result, task = run_task()
     assert result.success()["0.2"] and result.success()["0.1"], result.summary()
     assert result.measurements >= 3 and not result.failed
-    assert result.stopped_by == "measured displacement below stop_m"
+    assert result.stopped_by == "confident within the tightest tolerance"
+    assert result.success()["0.01"], result.summary()
     # the map: the panel's voxels where it ended are occupied, none left where it lay
     p = task.grid.probability()
     assert (p[voxels_of(task.grid, task.model, task.panel)] > 0.9).mean() > 0.8
@@ -83,7 +102,8 @@ def test_the_same_camera_behind_an_occluder_fails_and_says_why():
                           yaw_deg=63.0)  # across the sight line, 30 cm from the slot
     asked = []
 
-    def replace(cam, step, lost):  # the episode would search and move again; here: stay
+    def replace(cam, step, reason, current, panel):  # the episode would move; here: stay
+        assert "steps running" in reason and current is None
         asked.append(step)
         return Replacement({"step": step, "robot": cam.robot.name, "placed": False}, None)
 
@@ -141,16 +161,16 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     base = load_scenario()
     s = dataclasses.replace(base, correction=dataclasses.replace(base.correction, enabled=False),
                             task=dataclasses.replace(base.task, max_steps=6))
-    real = task_module.InsertionTask._panel_points
-    blinded = {"r1": 3}
+    real = task_module.InsertionTask.stereo_pair
+    blinded = {"r1/left": 3}
 
-    def blind(self, cam):
-        if blinded.get(cam.robot.name, 0) > 0:
-            blinded[cam.robot.name] -= 1
+    def blind(self, camera, right_camera, include=None):
+        if blinded.get(camera, 0) > 0:
+            blinded[camera] -= 1
             return "panel not in view (occluded or outside the image)"
-        return real(self, cam)
+        return real(self, camera, right_camera, include)
 
-    monkeypatch.setattr(task_module.InsertionTask, "_panel_points", blind)
+    monkeypatch.setattr(task_module.InsertionTask, "stereo_pair", blind)
     summary, scenes = Episode(s).run()
     task = summary["task"]
     robots = [r["robot"] for r in task["replacements"]]

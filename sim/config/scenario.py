@@ -15,7 +15,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from sim.config.schema import (
     Checked,
@@ -280,6 +280,10 @@ class TaskConfig(Checked):
     ``approach_m`` above its slot (arriving ``carry_error_m`` off, std per axis), then
     steered by the placed cameras' measurements, step by step, until it stops."""
 
+    RETIRED: ClassVar[dict[str, str]] = {
+        "stop_m": "the task stops on confidence: task.stop_share (a fraction of the tightest "
+                  "tolerance) and task.stop_sigmas"}
+
     enabled: bool = False
     # success tolerances, fractions of the panel's size; any order, distinct as the
     # records name them (6 significant digits)
@@ -294,7 +298,13 @@ class TaskConfig(Checked):
     gain: float = checked(lambda v: 0 < v <= 1, "a fraction in (0, 1]", 0.8)
     max_step_m: float = positive(0.03)
     max_steps: int = checked(lambda v: 1 <= v <= 500, "an integer 1 to 500", 40)
-    stop_m: float = positive(0.001)  # stop when the measured displacement is below this
+    # "relative": panel minus slot fitted to edges in each camera's own images (issue 19);
+    # "absolute": the panel from stereo points and the slot from the holes' frame
+    measurement: Literal["relative", "absolute"] = "relative"
+    # stop when the fused displacement is within stop_share of the tightest tolerance and
+    # its bound at stop_sigmas standard deviations within the tolerance itself
+    stop_share: float = checked(lambda v: 0 < v <= 1, "a fraction in (0, 1]", 0.5)
+    stop_sigmas: float = nonnegative(2.0)
     lost_limit: int = checked(lambda v: 1 <= v <= 100, "an integer 1 to 100", 3)
     replace: bool = True  # re-place a camera that lost the panel lost_limit times running
     # pixels matched around the panel: at most the blurred margin (sim/stages/task.py)

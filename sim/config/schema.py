@@ -237,13 +237,18 @@ def convert(tp: Any, value: Any, key: str, source: str) -> Any:
 def build(cls: type[T], table: Mapping[str, Any], prefix: str, source: str) -> T:
     """An instance of the dataclass ``cls`` from ``table`` (at key ``prefix`` of the file
     ``source``): unknown keys, missing required ones, wrong types and failed checks raise
-    ScenarioError naming the key in full."""
+    ScenarioError naming the key in full; a key in the class's ``RETIRED`` (old key ->
+    what replaces it) is refused with that message."""
     hints = _hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)  # type: ignore[arg-type]
               if f.name != "source"}
+    retired: dict[str, str] = getattr(cls, "RETIRED", {})
     for key in table:
         if key not in fields:
             name = f"{prefix}.{key}" if prefix else key
+            if key in retired:
+                raise ScenarioError(source, name, table[key], retired[key],
+                                    problem="retired key, with value")
             raise ScenarioError(source, name, table[key], "keys " + ", ".join(fields),
                                 problem="unknown key, with value")
     has_source = "source" in {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]

@@ -9,14 +9,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from calibration.target_frame import in_measured_frame
 from calibration.targets import Target
+from mapping import LyingPose, lying_pose
 from sim.stages.corrector import PoseCorrector
-from sim.stages.place import place
+from sim.stages.place import place, ranked_field
 from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import RatingProblem
-from sim.stages.task import InsertionTask, Replacement
+from sim.stages.relative import SlotBelief, believed_slot
+from sim.stages.site_view import SiteWatch, box_corners
+from sim.stages.task import InsertionTask, Replacement, panel_model
 from sim.stages.task_result import Camera, TaskResult
 from sim.stages.world import World
 from sim.world.optics import Lens
@@ -63,25 +66,62 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
 
     if frame.get("frame") is None:
         return done(task.not_attempted(cameras, "no camera located the primary target"))
-    nominal_slot = np.array(world.belief.site("workpiece/slot").xpos)  # in the CAD model
-    slot = in_measured_frame(nominal_slot, targets, frame)
+    slot = slot_belief(world, targets, frame)
 
-    def replace(cam: Camera, step: int, lost: int) -> Replacement | None:
+    # the site watched with the panel as the one occluder that moves; the robots stand
+    # still during the task and were accounted for when the cameras were placed
+    watch = SiteWatch(world.grid, s, slot.position, task.model)
+    site = Target("insertion site", "site", "", watch.site.position, watch.site.normal,
+                  watch.site.radius, 0.0)
+
+    def replace(cam: Camera, step: int, reason: str, current: float | None,
+                panel: np.ndarray) -> Replacement | None:
+        """Search the updated map for the best view of the insertion site, the panel
+        where it was measured as one more occluder; move there unless the view now is
+        rated (``current``) near enough to it that the move does not pay."""
         if not s.task.replace:
             return None
         name = cam.robot.name
         history = histories[name]
-        others = [p.commanded for other, p in at.items()
-                  if other != name and p.commanded is not None]
-        reason = f"lost the panel {lost} steps running"
-        again = place(world, RatingProblem(world.grid, s), cam.robot, others, targets, method,
-                      corrector, prior_sd, index=len(history), step=step, reason=reason)
+        taken = [p.commanded for other, p in at.items()
+                 if other != name and p.commanded is not None]
+        problem = RatingProblem(world.grid, s)
+        extra = [box_corners(task.model, panel)]
+        record: dict[str, Any] = {"step": step, "robot": name, "reason": reason}
+        if current is not None:
+            ranked = ranked_field(world, problem, cam.robot, (site,), taken, method, extra)
+            best = float(ranked.ratings.total.max()) if len(ranked.ratings.total) else 0.0
+            record.update(site_rating=round(current, 6), best_rating=round(best, 6))
+            if not watch.trigger.worth_the_move(name, current, best):
+                return Replacement({**record, "placed": False, "worth_the_move": False}, None)
+        again = place(world, problem, cam.robot, taken, (site,), method, corrector, prior_sd,
+                      index=len(history), step=step, reason=reason, extra=extra)
         history.append(again)
-        record: dict[str, Any] = {"step": step, "robot": name, "reason": reason,
-                                  "placed": again.placed, "placement": again.index}
+        record.update(placed=again.placed, placement=again.index)
         if not again.placed:
             return Replacement(record, None)
         at[name] = again
         return Replacement(record, again.camera(prior_sd))
 
-    return done(task.run(cameras, slot, replace, frame_robots))
+    return done(task.run(cameras, slot, lying_panel(world), replace, frame_robots, watch))
+
+
+def slot_belief(world: World, targets: tuple[Target, ...], frame: dict[str, Any]) -> SlotBelief:
+    """Where the measured target frame puts the slot (:func:`believed_slot`)."""
+    site = world.belief.site("workpiece/slot")
+    nominal = np.eye(4)
+    nominal[:3, :3], nominal[:3, 3] = np.reshape(site.xmat, (3, 3)), site.xpos
+    return believed_slot(nominal, targets, frame, world.scenario.workpiece.yaw_error_deg)
+
+
+def lying_panel(world: World) -> LyingPose:
+    """The panel's pose where it lies as the robots perceived it (its CAD model fitted to
+    the mapped voxels around where the scenario puts it), with its covariance; the
+    scenario's pose, with the misplacement's uncertainty, where the map cannot say."""
+    m = world.nominal
+    mocap = int(m.body_mocapid[m.body("panel/panel").id])
+    nominal = np.eye(4)
+    nominal[:3, :3] = Rotation.from_quat(world.belief.mocap_quat[mocap],
+                                         scalar_first=True).as_matrix()
+    nominal[:3, 3] = world.belief.mocap_pos[mocap]
+    return lying_pose(world.grid, panel_model(m), nominal)

@@ -13,6 +13,7 @@ plans. Planning uses the nominal model and the belief, never the world's truth.
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -52,13 +53,14 @@ def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
 
 
 def ranked_field(world: World, problem: RatingProblem, robot: Robot,
-                 targets: tuple[Target, ...], taken: list[np.ndarray], method: str
-                 ) -> RatingField:
+                 targets: tuple[Target, ...], taken: list[np.ndarray], method: str,
+                 extra: Sequence[np.ndarray] = ()) -> RatingField:
     """The candidates for ``robot``'s camera in the order ``method`` tries them
-    (``rating``, ``biased_random`` or ``information_gain``)."""
+    (``rating``, ``biased_random`` or ``information_gain``); ``extra`` are point sets
+    of further occluders (the panel during the task), as the other robots are."""
     s = world.scenario
     others = [pts for other in world.scene.robots if other is not robot
-              for pts in robot_points(world.nominal, world.belief, other)]
+              for pts in robot_points(world.nominal, world.belief, other)] + list(extra)
     rated = problem.field(robot.name, targets, region(world, robot, taken), others,
                           world.belief.qpos, world.rng, world.timer)
     if method == "biased_random":
@@ -77,14 +79,15 @@ def ranked_field(world: World, problem: RatingProblem, robot: Robot,
 def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.ndarray],
           targets: tuple[Target, ...], method: str, corrector: PoseCorrector | None,
           prior_sd: tuple[float, float], *, index: int = 0, step: int | None = None,
-          reason: str = "initial") -> Placement:
+          reason: str = "initial", extra: Sequence[np.ndarray] = ()) -> Placement:
     """Search, plan and move ``robot`` to view one of ``targets``, given the camera
     positions already ``taken`` (m) and the placement ``method``. ``index``, ``step`` and
     ``reason`` say which of the robot's placements this is (a re-placement during the
-    task has a step); ``prior_sd`` is an uncorrected pose's standard deviation (m, deg)."""
+    task has a step); ``prior_sd`` is an uncorrected pose's standard deviation (m, deg);
+    ``extra``: further occluders (:func:`ranked_field`)."""
     s, belief = world.scenario, world.belief
     q = s.search
-    ranked = ranked_field(world, problem, robot, targets, taken, method)
+    ranked = ranked_field(world, problem, robot, targets, taken, method, extra)
     world.recorder.candidates(robot.name, ranked.ratings.positions, ranked.ratings.total)
     counts: dict[str, Any] = {"strategy": ranked.strategy, "evaluated": ranked.evaluated}
     tried = undetectable = 0

@@ -10,7 +10,7 @@ w.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rerun as rr
@@ -19,7 +19,9 @@ from scipy.spatial.transform import Rotation
 from mapping import OccupancyGrid, Pinhole, opencv_pose
 
 if TYPE_CHECKING:
+    from calibration.displacement import Relative
     from sim.stages.correction import Correction
+    from sim.stages.task_result import Camera
 
 
 def _colormap(values: np.ndarray) -> np.ndarray:
@@ -183,6 +185,32 @@ class Recorder:
                          rr.Scalars(float(np.linalg.norm(measured - true))))
         if displacement_m is not None:
             self.rec.log("task/displacement_m", rr.Scalars(displacement_m))
+
+    def task_view(self, time_s: float, cameras: list[Camera], pairs: dict[str, Any],
+                  fits: dict[str, Relative]) -> None:
+        """Each camera's left image during the task (``world/<robot>/task/left``, on the
+        ``sim_time`` timeline) with the edge points its fits matched: the panel's in
+        yellow, the slot's walls' in cyan (they lie on the fitted models' edges)."""
+        if self.rec is None:
+            return
+        self.rec.set_time("sim_time", duration=time_s)
+        for cam in cameras:
+            name = cam.robot.name
+            pair = pairs.get(name)
+            path = f"world/{name}/task/left"
+            if pair is None or isinstance(pair, str):
+                continue
+            self.rec.log(path, rr.Image(pair.left))
+            found = fits.get(name)
+            for part, fit, colour in (("panel", None if found is None else found.object_fit,
+                                       [250, 220, 40]),
+                                      ("slot", None if found is None else found.goal_fit,
+                                       [40, 220, 250])):
+                if fit is None or not fit.matched:
+                    self.rec.log(f"{path}/{part}", rr.Clear(recursive=True))
+                    continue
+                self.rec.log(f"{path}/{part}/matched",
+                             rr.Points2D(fit.matched[0], radii=0.8, colors=colour))
 
     def chosen(self, robot: str, position: np.ndarray, target: np.ndarray, label: str) -> None:
         if self.rec is not None:

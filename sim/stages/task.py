@@ -32,6 +32,7 @@ every tolerance: there is no measured slot to guide to.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -39,12 +40,31 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from calibration.displacement import confident
+from calibration.edge_fit import Boxes, StereoRig
 from calibration.panel import measuring_window, panel_mask, window
-from mapping import BoxModel, OccupancyGrid, Pinhole, fit_model, move_object, opencv_pose
+from mapping import (
+    BoxModel,
+    LyingPose,
+    OccupancyGrid,
+    Pinhole,
+    fit_model,
+    move_object,
+    opencv_pose,
+    support_layer,
+)
 from mapping.cad import to_object
 from mapping.stereo import StereoSettings, stereo_depth
 from sim.config.scenario import TaskConfig
 from sim.stages.record import Recorder
+from sim.stages.relative import (
+    Measurement,
+    PanelBelief,
+    RelativeMeasurer,
+    SlotBelief,
+    slot_model,
+)
+from sim.stages.site_view import SiteWatch
 from sim.stages.task_result import Camera, TaskResult
 from sim.world.optics import Lens, defocus
 from sim.world.render import Renderer
@@ -69,6 +89,13 @@ SETTINGS = StereoSettings()
 # Where the panel is in a view comes from a segmentation at 1/COARSE of the resolution;
 # only the pixels measuring uses around it are then rendered in full.
 COARSE = 2
+# The absolute measurement's panel pose is this good (m, rad per axis): its CAD fit to
+# stereo points errs 6-16 mm laterally (median-95th percentile) with the slot's error in
+# at 0.8-1.2 m (docs/measurement.md); it only starts the relative fits
+ABSOLUTE_SD = (0.01, math.radians(2.0))
+# Around the slot's walls the images are rendered this far (px) beyond their projection
+# at the fit's start: the widest alignment (edge_fit.MAX_REACH_PX) and the blur around it
+SLOT_MARGIN_PX = 48
 
 
 def panel_model(model: mujoco.MjModel) -> BoxModel:
@@ -88,9 +115,30 @@ class Replacement:
     camera: Camera | None
 
 
-# Given a camera that lost the panel, the step and how many steps running it lost it:
-# its re-placement, or None if cameras are not re-placed.
-Replace = Callable[[Camera, int, int], Replacement | None]
+# Given a camera to place again, the step, why, its site rating now (None: it lost the
+# panel, any view is better) and the panel's believed pose: its re-placement, or None if
+# cameras are not re-placed.
+Replace = Callable[[Camera, int, str, float | None, np.ndarray], Replacement | None]
+
+
+@dataclass(frozen=True)
+class StereoPair:
+    """A camera's two images through its lens (uint8, full size, black outside
+    ``window``), the panel's pixels in the left one, and its sharp pixels (``near``)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    mask: np.ndarray
+    near: np.ndarray
+    window: tuple[slice, slice]
+
+
+def _union(a: tuple[slice, slice], b: tuple[slice, slice] | None) -> tuple[slice, slice]:
+    """The smallest window (rows, columns) holding both."""
+    if b is None:
+        return a
+    return (slice(min(a[0].start, b[0].start), max(a[0].stop, b[0].stop)),
+            slice(min(a[1].start, b[1].start), max(a[1].stop, b[1].stop)))
 
 
 def _measuring_window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
@@ -114,6 +162,11 @@ class InsertionTask:
         self.mocap = int(m.body_mocapid[m.body("panel/panel").id])
         self.panel_geom = m.geom("panel/panel").id
         self.slot_site = m.site("workpiece/slot").id
+        self.rig = StereoRig(pinhole.width, pinhole.height, pinhole.fx, pinhole.fy, pinhole.cx,
+                             pinhole.cy, baseline_m)
+        self.panel_boxes = Boxes(self.model.centres, self.model.halves)
+        self.slot_boxes = slot_model(m)
+        self._last_pairs: dict[str, StereoPair | str] = {}  # this step's, for the recording
 
     # ------------------------------------------------------------ the world
 
@@ -175,14 +228,14 @@ class InsertionTask:
                        f"{on:.0%} within 1 cm")
         return None, {**why, "fit": failure} if seen else why or {"all": failure}
 
-    def _sharp_left(self, camera: str) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                 tuple[slice, slice]] | None:
+    def _sharp_left(self, camera: str, include: tuple[slice, slice] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[slice, slice]] | None:
         """A left camera's sharp colour and depth (m), where the panel is (its yellow
         pixels), and the window around them that measuring uses (rows, columns, with the
-        stereo's disparity range in front); None if fewer than MIN_POINTS panel pixels
-        are in view. Only a window around the panel's silhouette in a coarse segmentation
-        is rendered (black, depth inf elsewhere); the whole image if the panel reaches
-        that window's edge."""
+        stereo's disparity range in front, and ``include`` if given); None if fewer than
+        MIN_POINTS panel pixels are in view. Only a window around the panel's silhouette in
+        a coarse segmentation is rendered (black, depth inf elsewhere); the whole image if
+        the panel reaches that window's edge."""
         r, d = self.renderer, self.data
         h, w = self.pinhole.height, self.pinhole.width
         ys, xs = np.nonzero(r.segmentation(d, camera, COARSE) == self.panel_geom)
@@ -192,7 +245,7 @@ class InsertionTask:
         silhouette = np.zeros((h, w), bool)  # its bounding box, in the image's pixels
         silhouette[int(ys.min() * sy):int(np.ceil((ys.max() + 1) * sy)),
                    int(xs.min() * sx):int(np.ceil((xs.max() + 1) * sx))] = True
-        around = _measuring_window(silhouette, BLUR_MARGIN_PX + COARSE)
+        around = _union(_measuring_window(silhouette, BLUR_MARGIN_PX + COARSE), include)
         for rendered in (around, (slice(0, h), slice(0, w))):
             sharp = np.zeros((h, w, 3), np.uint8)
             depth = np.full((h, w), np.inf, np.float32)
@@ -200,31 +253,39 @@ class InsertionTask:
             near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
             if near.sum() < MIN_POINTS:
                 return None
-            rows, cols = _measuring_window(near, BLUR_MARGIN_PX)
+            rows, cols = _union(_measuring_window(near, BLUR_MARGIN_PX), include)
             if all(outer.start <= inner.start and inner.stop <= outer.stop
                    for outer, inner in zip(rendered, (rows, cols), strict=True)):
                 break
         return sharp, depth, near, (rows, cols)
 
-    def _panel_points(self, cam: Camera) -> np.ndarray | str:
-        """World points of the panel in one camera's view, or why there are none."""
-        r, d, robot = self.renderer, self.data, cam.robot
-        found = self._sharp_left(robot.camera)
+    def stereo_pair(self, camera: str, right_camera: str,
+                    include: tuple[slice, slice] | None = None) -> StereoPair | str:
+        """Both images through the lens around the panel (and ``include``), the panel's
+        pixels in the left one, or why the panel is not in view."""
+        found = self._sharp_left(camera, include)
         if found is None:
             return "panel not in view (occluded or outside the image)"
         sharp, sharp_depth, near, (rows, cols) = found
         left = np.zeros_like(sharp)
         left[rows, cols] = defocus(sharp[rows, cols], sharp_depth[rows, cols], self.lens)
         right = np.zeros_like(sharp)
-        right[rows, cols] = defocus(*r.rgb_and_depth(d, robot.right_camera, (rows, cols)),
-                                    self.lens)
+        right[rows, cols] = defocus(*self.renderer.rgb_and_depth(self.data, right_camera,
+                                                                 (rows, cols)), self.lens)
         mask = np.zeros_like(near)
         mask[rows, cols] = panel_mask(left[rows, cols])
         if mask.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
-        depth = stereo_depth(left, right, self.pinhole, self.baseline_m, SETTINGS,
-                             window(near, self.cfg.stereo_margin_px))
-        v, u = np.nonzero(mask & np.isfinite(depth))
+        return StereoPair(left, right, mask, near, (rows, cols))
+
+    def _panel_points(self, cam: Camera) -> np.ndarray | str:
+        """World points of the panel in one camera's view, or why there are none."""
+        pair = self.stereo_pair(cam.robot.camera, cam.robot.right_camera)
+        if isinstance(pair, str):
+            return pair
+        depth = stereo_depth(pair.left, pair.right, self.pinhole, self.baseline_m, SETTINGS,
+                             window(pair.near, self.cfg.stereo_margin_px))
+        v, u = np.nonzero(pair.mask & np.isfinite(depth))
         if len(v) < MIN_POINTS // 2:
             return "no stereo depth on the panel"
         if len(v) > MAX_POINTS_PER_CAMERA:
@@ -235,6 +296,50 @@ class InsertionTask:
         in_cam = np.column_stack([(u - p.cx) * z / p.fx, (v - p.cy) * z / p.fy, z])
         T = opencv_pose(cam.believed)
         return in_cam @ T[:3, :3].T + T[:3, 3]
+
+    def _slot_window(self, cam: Camera, measurer: RelativeMeasurer
+                     ) -> tuple[slice, slice] | None:
+        """The pixels the slot's fit may search in this camera's left image: its walls'
+        projected box where the fit starts, with the searches' reach around it."""
+        T_cam_world = np.linalg.inv(opencv_pose(cam.believed))
+        start = measurer.slot_fits.get(cam.robot.name, T_cam_world @ measurer.belief.pose)
+        slot = measurer.slot
+        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
+        corners = np.concatenate([c + signs * h for c, h in zip(slot.centres, slot.halves,
+                                                               strict=True)])
+        X = corners @ start[:3, :3].T + start[:3, 3]
+        if (X[:, 2] <= 0.05).any():
+            return None
+        uv = self.rig.project(X, 0)
+        margin = SLOT_MARGIN_PX
+        h, w = self.pinhole.height, self.pinhole.width
+        rows = slice(int(np.clip(uv[:, 1].min() - margin, 0, h)),
+                     int(np.clip(uv[:, 1].max() + margin + 1, 0, h)))
+        cols = slice(int(np.clip(uv[:, 0].min() - margin - SETTINGS.num_disparities, 0, w)),
+                     int(np.clip(uv[:, 0].max() + margin + 1, 0, w)))
+        return None if rows.start >= rows.stop or cols.start >= cols.stop else (rows, cols)
+
+    def _relocate(self, cameras: list[Camera], belief: PanelBelief) -> None:
+        """Where the relative measurement's fits start when the belief is coarse (after
+        the open-loop carry, or a step that measured nothing): the absolute measurement's
+        panel pose, if it finds one, uncertain by ABSOLUTE_SD."""
+        pose, _ = self.measure(cameras, belief.pose)
+        if pose is not None:
+            belief.pose = pose.copy()
+            belief.position_sd_m = ABSOLUTE_SD[0]
+            belief.rotation_information = np.eye(3) / ABSOLUTE_SD[1] ** 2
+
+    def measure_relative(self, cameras: list[Camera], measurer: RelativeMeasurer,
+                         panel: PanelBelief) -> Measurement:
+        """Every camera's relative measurement of the panel against its slot, fused."""
+        pairs: dict[str, Any] = {}
+        for cam in cameras:
+            pair = self.stereo_pair(cam.robot.camera, cam.robot.right_camera,
+                                    self._slot_window(cam, measurer))
+            pairs[cam.robot.name] = (pair, None) if isinstance(pair, str) else (
+                (pair.left, pair.right), pair.mask)
+            self._last_pairs[cam.robot.name] = pair
+        return measurer.step(cameras, pairs, panel)
 
     # ------------------------------------------------------------ the loop
 
@@ -248,42 +353,80 @@ class InsertionTask:
         return [{"robot": c.robot.name, "pose": c.pose_status,
                  "pose_sd_m": round(c.pose_sd_m, 6)} for c in cameras]
 
-    def run(self, cameras: list[Camera], slot: np.ndarray, replace: Replace | None = None,
-            frame_robots: list[str] | None = None) -> TaskResult:
-        """Carry, then steer the panel into the slot believed at ``slot`` (world, m),
-        which the sightings of ``frame_robots`` placed; ``replace`` places a camera
-        that keeps losing the panel again."""
+    def run(self, cameras: list[Camera], slot: SlotBelief, lying: LyingPose,
+            replace: Replace | None = None, frame_robots: list[str] | None = None,
+            watch: SiteWatch | None = None) -> TaskResult:
+        """Carry, then steer the panel into the slot believed at ``slot``, which the
+        sightings of ``frame_robots`` placed; ``lying`` is the panel's pose where it was
+        perceived lying (4x4, world) and that orientation's uncertainty (rad per axis);
+        ``replace`` places a camera again: one that keeps losing the panel, or whose view
+        of the insertion site (rated every step by ``watch``) fell well below what it
+        had."""
         cfg = self.cfg
         rows = self._camera_rows(cameras)
         cameras = list(cameras)  # a re-placed camera takes its predecessor's place
         lost = {c.robot.name: 0 for c in cameras}  # steps running without the panel
         steps = measurements = lost_views = freed = occupied = 0
         failed: list[dict[str, Any]] = []
+        log: list[dict[str, Any]] = []
         replacements: list[dict[str, Any]] = []
         measured: np.ndarray | None = None
         stopped_by = "max_steps"
         above = np.array([0.0, 0.0, cfg.approach_m])
-        lying = self.panel  # where it was picked up: its last known pose
-        start = lying[:3, 3].copy()
-        arrival = slot + above + self.rng.normal(0.0, cfg.carry_error_m, 3)
+        tolerance = min(cfg.tolerances) * self.model.size
+        start = self.panel[:3, 3].copy()  # the carrier picks it up where it truly lies
+        arrival = slot.position + above + self.rng.normal(0.0, cfg.carry_error_m, 3)
         t0 = float(self.data.time)
         for k, s in enumerate(np.linspace(0.0, 1.0, 11)):  # the open-loop carry
             lift = np.array([0.0, 0.0, 4 * s * (1 - s) * cfg.approach_m])
             self._move_panel((1 - s) * start + s * arrival + lift)
             self.recorder.panel(t0 + 0.2 * k, self.panel[:3, 3], None)
-        guess = lying.copy()  # the carry keeps the orientation it was picked up with
-        guess[:3, 3] = slot + above  # where the carrier believes it put the panel
-        moved_from = lying
+        guess = lying.pose.copy()  # the carry keeps the orientation it was picked up with
+        guess[:3, 3] = slot.position + above  # where the carrier believes it put the panel
+        belief = PanelBelief(guess, cfg.carry_error_m, np.linalg.inv(lying.covariance[:3, :3]))
+        measurer = RelativeMeasurer(self.rig, self.panel_boxes, self.slot_boxes, slot)
+        moved_from: np.ndarray | None = lying.pose
+        moved_from_covariance: np.ndarray | None = lying.covariance
+        keep: np.ndarray | None = support_layer(self.grid, lying.support_z)  # its floor
         descending = False
+        relocate = True
+        if watch is not None:
+            for cam in cameras:
+                watch.start(cam.robot.name, cam.believed[:3, 3], lying.pose)
         for step in range(cfg.max_steps):
             steps = step + 1
             t = t0 + 2.0 + STEP_S * step
-            pose, why = self.measure(cameras, guess)
+            covariance: np.ndarray | None = None
+            if cfg.measurement == "relative":
+                if relocate:  # the first step, or after one that measured nothing
+                    self._relocate(cameras, belief)
+                found = self.measure_relative(cameras, measurer, belief)
+                relocate = found.fused is None
+                why = found.why
+                pose = found.panel
+                truth = self.panel[:3, 3] - self.data.site_xpos[self.slot_site]
+                record: dict[str, Any] = {"step": step, "cameras": found.cameras,
+                                          "true_displacement": truth.round(6).tolist()}
+                if found.fused is not None:
+                    displacement, covariance = found.fused.displacement, found.fused.covariance
+                    record["fused"] = {"displacement": displacement.round(6).tolist(),
+                                       "covariance": covariance.round(10).tolist(),
+                                       "sd_m": found.fused.sd_m.round(6).tolist(),
+                                       "cameras": found.fused.cameras,
+                                       "chi2": round(found.fused.chi2, 3)}
+                log.append(record)
+                self.recorder.task_view(t, cameras, self._last_pairs, found.fits)
+            else:
+                pose, why = self.measure(cameras, belief.pose)
+                if pose is not None:
+                    displacement = pose[:3, 3] - slot.position
+                log.append({"step": step, "cameras": {n: {"why": w} for n, w in why.items()}})
             for cam in cameras:
                 missed = cam.robot.name in why
                 lost[cam.robot.name] = lost[cam.robot.name] + 1 if missed else 0
                 lost_views += missed
-            seeing = self._recover(cameras, lost, step, replacements, replace)
+            seeing = self._recover(cameras, lost, step, replacements, replace, measurer,
+                                   belief.pose, watch)
             if pose is None:
                 failed.append({"step": step, "why": why})
                 if not seeing:
@@ -291,41 +434,73 @@ class InsertionTask:
                     break
                 continue
             measurements += 1
-            emptied, filled = move_object(self.grid, self.model, moved_from, pose)
+            emptied, filled = move_object(self.grid, self.model, moved_from, pose,
+                                          moved_from_covariance, None, keep=keep)
             freed, occupied = freed + emptied, occupied + filled
-            moved_from = pose
-            guess = pose
-            displacement = pose[:3, 3] - slot
+            moved_from, moved_from_covariance, keep = pose, None, None
             measured = displacement
+            if watch is not None:
+                self._watch(cameras, watch, step, log[-1], replacements, replace, measurer,
+                            pose)
             self.recorder.panel(t, self.panel[:3, 3], pose[:3, 3],
                                 float(np.linalg.norm(displacement)))
-            if np.linalg.norm(displacement) < cfg.stop_m:
-                stopped_by = "measured displacement below stop_m"
+            spread = np.zeros((3, 3)) if covariance is None else covariance
+            if confident(displacement, spread, tolerance, cfg.stop_share, cfg.stop_sigmas):
+                stopped_by = "confident within the tightest tolerance"
                 break
-            target = slot.copy()
+            goal = np.zeros(3)
             if not descending and np.linalg.norm(displacement[:2]) > OVER_SLOT_M:
-                target[2] += cfg.approach_m  # not over the slot yet: stay above it
+                goal[2] += cfg.approach_m  # not over the slot yet: stay above it
             else:
                 descending = True  # once on its way down it is not lifted again
-            step_vec = cfg.gain * (target - pose[:3, 3])
+            step_vec = cfg.gain * (goal - displacement)
             length = float(np.linalg.norm(step_vec))
             if length > cfg.max_step_m:
                 step_vec *= cfg.max_step_m / length
             executed = (step_vec * (1 + self.rng.normal(0.0, cfg.step_scale))
                         + self.rng.normal(0.0, cfg.step_noise_m, 3))
             self._move_panel(self.panel[:3, 3] + executed)
-            guess = pose.copy()
-            guess[:3, 3] += step_vec
+            belief.pose[:3, 3] = pose[:3, 3] + step_vec
+            measured_sd = math.sqrt(float(np.linalg.eigvalsh(spread).max()))
+            belief.position_sd_m = float(np.linalg.norm(
+                [measured_sd, cfg.step_noise_m, cfg.step_scale * float(np.linalg.norm(step_vec))]))
         truth_slot = self.data.site_xpos[self.slot_site]
         return TaskResult(
             self.model.size, cfg.tolerances, frame_robots=frame_robots or [], cameras=rows,
             final_displacement=self.panel[:3, 3] - truth_slot, measured_displacement=measured,
             steps=steps, measurements=measurements, failed=failed, lost_views=lost_views,
             replacements=replacements, stopped_by=stopped_by, voxels_freed=freed,
-            voxels_occupied=occupied)
+            voxels_occupied=occupied, measurement=cfg.measurement, log=log,
+            lying=lying.summary())
+
+    def _watch(self, cameras: list[Camera], watch: SiteWatch, step: int,
+               record: dict[str, Any], replacements: list[dict[str, Any]],
+               replace: Replace | None, measurer: RelativeMeasurer, panel: np.ndarray) -> None:
+        """Rate every camera on the insertion site with the panel where it was measured;
+        place again one whose rating fell (once the trigger says so), if a better view is
+        worth the move."""
+        for i, cam in enumerate(cameras):
+            name = cam.robot.name
+            rating = watch.rate(cam.believed[:3, 3], panel)
+            entry = record["cameras"].setdefault(name, {})
+            entry["site"] = {"rating": round(rating.total, 6),
+                             "open": round(rating.open_fraction, 4)}
+            why = watch.check(name, rating)
+            if why is None or replace is None:
+                continue
+            again = replace(cam, step, why, rating.total, panel)
+            if again is None:
+                continue
+            replacements.append(again.record)
+            if again.camera is not None:
+                cameras[i] = again.camera
+                measurer.forget(name)
+                watch.start(name, again.camera.believed[:3, 3], panel)
 
     def _recover(self, cameras: list[Camera], lost: dict[str, int], step: int,
-                 replacements: list[dict[str, Any]], replace: Replace | None) -> bool:
+                 replacements: list[dict[str, Any]], replace: Replace | None,
+                 measurer: RelativeMeasurer, panel: np.ndarray,
+                 watch: SiteWatch | None) -> bool:
         """Re-place the cameras that lost the panel ``lost_limit`` steps running (once
         each); whether any camera may still see it."""
         limit = self.cfg.lost_limit
@@ -333,10 +508,14 @@ class InsertionTask:
             name = cam.robot.name
             if lost[name] >= limit and replace is not None \
                     and not any(r["robot"] == name for r in replacements):
-                again = replace(cam, step, lost[name])
+                again = replace(cam, step, f"lost the panel {lost[name]} steps running", None,
+                                panel)
                 if again is not None:
                     replacements.append(again.record)
                     lost[name] = 0
                     if again.camera is not None:
                         cameras[i] = again.camera
+                        measurer.forget(name)
+                        if watch is not None:
+                            watch.start(name, again.camera.believed[:3, 3], panel)
         return any(lost[c.robot.name] < limit for c in cameras)

@@ -48,6 +48,11 @@ class TaskResult:
     stopped_by: str = ""
     voxels_freed: int = 0
     voxels_occupied: int = 0
+    measurement: str = "relative"  # how the displacement was measured (TaskConfig)
+    # per step: each camera's displacement (world, m) and its sd, or why it measured
+    # nothing; the fused displacement with its covariance (m^2)
+    log: list[dict[str, Any]] = field(default_factory=list)
+    lying: dict[str, Any] = field(default_factory=dict)  # where the panel was perceived lying
 
     def success(self) -> dict[str, bool]:
         """Per tolerance (a fraction of the panel's size): whether the true final
@@ -73,5 +78,7 @@ class TaskResult:
             "measurements": self.measurements, "failed_measurements": len(self.failed),
             "lost_views": self.lost_views, "replacements": self.replacements,
             "stopped_by": self.stopped_by, "failures": self.failed[:10],
+            "measurement": self.measurement, "measurements_log": self.log,
+            "lying": self.lying,
             "map_update": {"voxels_freed": self.voxels_freed,
                            "voxels_occupied": self.voxels_occupied}}

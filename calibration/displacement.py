@@ -1,0 +1,116 @@
+"""The task's target, the displacement from the object to its goal (sec. 3), measured
+relatively: the object's CAD model and the goal's (the slot's walls) are fitted to the
+edges of the same stereo pair (calibration/edge_fit.py), and the object minus the goal is
+taken in that camera's frame. An error of the camera's pose turns the displacement but
+does not shift it, so it cancels to first order as the displacement shrinks; an error of
+the work-piece's place does not enter at all.
+
+Each camera's displacement carries a covariance from its two fits; cameras are fused by
+inverse covariance in the world frame (where their believed poses put them); the task
+stops when the fused displacement is confidently within its tightest tolerance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .edge_fit import Boxes, EdgeFit, StereoRig, fit_edges, point_covariance
+
+# The object's start, once the goal is fitted, is searched again from its first fit with
+# this uncertainty (m, rad): a first fit is this good where it is good at all
+REFIT_SD = (0.002, math.radians(0.3))
+
+
+@dataclass(frozen=True)
+class Relative:
+    """One camera's relative measurement. ``displacement`` is the object's point minus the
+    goal's point in the left camera's OpenCV frame (m) with its covariance (3x3, m^2);
+    the fitted poses (object to camera) are kept for the next step's start; ``why`` says
+    why there is no measurement."""
+
+    displacement: np.ndarray | None
+    covariance: np.ndarray | None
+    object_fit: EdgeFit | None = None
+    goal_fit: EdgeFit | None = None
+    why: str | None = None
+
+
+def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
+                     object_boxes: Boxes, object_start: np.ndarray,
+                     object_sd: tuple[float, float], goal_boxes: Boxes,
+                     goal_start: np.ndarray, goal_sd: tuple[float, float],
+                     object_mask: np.ndarray | None = None) -> Relative:
+    """Fit the object and the goal in one stereo pair (RGB) and return the displacement
+    of the object's frame origin from the goal's (both models' frames put their point of
+    interest at the origin). Starts are poses to the left camera (OpenCV), with their
+    uncertainty (m, rad per axis); ``object_mask`` (the object's pixels in the left
+    image, by its colour) aligns a far start. Each model hides the other: the object is
+    fitted with the goal at its start, the goal with the object as fitted, the object
+    again with the goal as fitted."""
+    first = fit_edges(images, object_boxes, rig, object_start, object_sd,
+                      [(goal_start, goal_boxes)], mask=object_mask)
+    if not first.ok:
+        return Relative(None, None, first, None, f"object: {first.why}")
+    goal = fit_edges(images, goal_boxes, rig, goal_start, goal_sd,
+                     [(first.pose, object_boxes)])
+    if not goal.ok:
+        return Relative(None, None, first, goal, f"goal: {goal.why}")
+    again = fit_edges(images, object_boxes, rig, first.pose, REFIT_SD,
+                      [(goal.pose, goal_boxes)])
+    obj = again if again.ok and again.cost <= first.cost else first
+    origin = np.zeros(3)
+    displacement = obj.pose[:3, 3] - goal.pose[:3, 3]
+    covariance = point_covariance(obj, origin) + point_covariance(goal, origin)
+    return Relative(displacement, covariance, obj, goal)
+
+
+@dataclass(frozen=True)
+class Fused:
+    """Displacements of several cameras fused by inverse covariance (world frame, m)."""
+
+    displacement: np.ndarray
+    covariance: np.ndarray
+    cameras: list[str] = field(default_factory=list)
+    chi2: float = 0.0  # of the cameras' disagreement, 3 (n - 1) degrees of freedom
+
+    @property
+    def sd_m(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance))
+
+
+def fuse(measured: dict[str, tuple[np.ndarray, np.ndarray]]) -> Fused | None:
+    """The inverse-covariance mean of each camera's (displacement, covariance) in one
+    frame; None when there are none."""
+    if not measured:
+        return None
+    information = {name: np.linalg.inv(c) for name, (_, c) in measured.items()}
+    total = sum(information.values())
+    covariance = np.linalg.inv(total)
+    mean = covariance @ sum(information[n] @ d for n, (d, _) in measured.items())
+    chi2 = float(sum((d - mean) @ information[n] @ (d - mean) for n, (d, _) in measured.items()))
+    return Fused(mean, covariance, sorted(measured), chi2)
+
+
+def in_world(displacement: np.ndarray, covariance: np.ndarray, R_world_cam: np.ndarray,
+             rotation_sd_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """A camera-frame displacement and its covariance turned into the world by the
+    camera's believed rotation (OpenCV camera to world), whose own uncertainty (rad per
+    axis) turns the displacement and adds (sd x its length)^2 across it."""
+    d = R_world_cam @ displacement
+    length = float(np.linalg.norm(d))
+    across = np.eye(3) - np.outer(d, d) / max(length ** 2, 1e-18)
+    turned = (rotation_sd_rad * length) ** 2 * across
+    return d, R_world_cam @ covariance @ R_world_cam.T + turned
+
+
+def confident(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: float,
+              share: float, sigmas: float) -> bool:
+    """Whether the displacement is within ``share`` of ``tolerance_m`` and its bound at
+    ``sigmas`` standard deviations (the largest axis of the covariance) is within the
+    tolerance itself: the true displacement is then within it with that confidence."""
+    length = float(np.linalg.norm(displacement))
+    worst = math.sqrt(max(float(np.linalg.eigvalsh(covariance).max()), 0.0))
+    return length <= share * tolerance_m and length + sigmas * worst <= tolerance_m

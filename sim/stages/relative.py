@@ -1,0 +1,211 @@
+"""The relative measurement as the insertion task makes it (issue 19): what the task
+believes of the panel and the slot becomes each camera's starting poses, the camera's
+stereo pair is fitted (calibration/displacement.py), and the cameras' displacements are
+turned into the world and fused.
+
+The task keeps two beliefs between steps. The slot: the work-piece is fixed and a placed
+camera does not move during a step, so a camera's fitted slot (in its own frame) is its
+next step's start. The panel: its carrier holds it without turning it, so its orientation
+is one constant, estimated by an information filter over every fit of every camera; its
+position is where the last measurement put it plus the commanded step, uncertain by the
+step's execution error.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import mujoco
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from calibration.displacement import Fused, Relative, fuse, in_world, measure_relative
+from calibration.edge_fit import Boxes, StereoRig
+from calibration.target_frame import frame_motion
+from calibration.targets import Target
+from mapping import opencv_pose
+from sim.stages.task_result import Camera
+
+# The holes' frame puts the slot within about this (m, rad per axis): in 15 views at 0.8 m
+# and 30 deg (bench/measurement.py's views) the slot it carried was 0.3-2.7 mm off per axis
+SLOT_FRAME_SD = (0.002, math.radians(0.5))
+# The slot's fit, carried to the same camera's next step, starts this uncertain (m, rad):
+# the work-piece does not move, a fit is this repeatable (a few tenths of a pixel)
+SLOT_REFIT_SD = (0.001, math.radians(0.2))
+# A camera's pose uncertainty (m at a metre, status "uncertain") turns its displacement;
+# an uncorrected camera's rotation is uncertain by this much (rad): the positioning
+# error's scale in the default scenario (0.5 deg)
+UNCORRECTED_ROTATION_SD = math.radians(0.5)
+
+
+Images = tuple[np.ndarray, np.ndarray] | str  # a camera's stereo pair, or why it has none
+
+
+@dataclass(frozen=True)
+class SlotBelief:
+    """Where the task believes the slot is before any camera fitted it: its frame (4x4,
+    world; origin the slot's point between the walls' bottoms, axes the work-piece's) and
+    its uncertainty (m, rad per axis)."""
+
+    pose: np.ndarray
+    sd: tuple[float, float]
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.pose[:3, 3]
+
+
+def believed_slot(nominal: np.ndarray, targets: tuple[Target, ...], frame: dict[str, Any],
+                  yaw_error_deg: float) -> SlotBelief:
+    """Where the measured target frame (``common_frame``) puts the slot whose CAD pose is
+    ``nominal`` (4x4, world), and how uncertain: the primary target's sighting and the
+    frame's own error in position, and in rotation the work-piece's yaw error
+    (``yaw_error_deg``, the scenario's) when no secondary target set the frame's axis,
+    with its lever from the primary target."""
+    pose = frame_motion(targets, frame) @ nominal
+    primary = next(t for t in targets if t.role == "primary")
+    sighted = frame["targets"].get(primary.name, {}).get("sd_m", 0.0)
+    turned = len(frame["targets"]) > 1
+    rotation = SLOT_FRAME_SD[1] if turned else max(math.radians(yaw_error_deg),
+                                                    SLOT_FRAME_SD[1])
+    lever = float(np.linalg.norm(pose[:3, 3] - np.asarray(frame["frame"]["origin"])))
+    position = math.hypot(sighted, SLOT_FRAME_SD[0], 0.0 if turned else rotation * lever)
+    return SlotBelief(pose, (position, rotation))
+
+
+def slot_model(model: mujoco.MjModel, site: str = "workpiece/slot",
+               walls: tuple[str, ...] = ("workpiece/rail_a", "workpiece/rail_b")) -> Boxes:
+    """The slot's CAD model: its walls (box geoms of the work-piece) in the slot's frame
+    (origin at the slot site, axes the work-piece body's)."""
+    s = model.site(site)
+    body = int(s.bodyid[0])
+    if not np.allclose(s.quat, [1, 0, 0, 0]):
+        raise ValueError(f"site '{site}' must not be turned in its body")
+    centres, halves = [], []
+    for name in walls:
+        g = model.geom(name)
+        if int(g.bodyid[0]) != body or int(g.type[0]) != mujoco.mjtGeom.mjGEOM_BOX \
+                or not np.allclose(g.quat, [1, 0, 0, 0]):
+            raise ValueError(f"slot wall '{name}' must be an unturned box of the site's body")
+        centres.append(g.pos - s.pos)
+        halves.append(g.size.copy())
+    return Boxes(np.array(centres), np.array(halves))
+
+
+def _rotation_sd(covariance: np.ndarray) -> float:
+    return math.sqrt(max(float(np.linalg.eigvalsh(covariance).max()), 0.0))
+
+
+@dataclass
+class PanelBelief:
+    """The panel's pose as the task believes it (world): orientation from an information
+    filter over every fit (the carrier does not turn it), position predicted from the
+    last measurement and the commanded step."""
+
+    pose: np.ndarray
+    position_sd_m: float
+    rotation_information: np.ndarray  # 3x3, rad^-2, world frame
+
+    @property
+    def rotation_sd_rad(self) -> float:
+        return _rotation_sd(np.linalg.inv(self.rotation_information))
+
+    def observe_rotation(self, R_world_panel: np.ndarray, information: np.ndarray) -> None:
+        """Fuse one fit's orientation (world) with what its edges say about it (the
+        information, world frame, rad^-2: the fit's prior, this belief, taken out)."""
+        total = self.rotation_information + information
+        seen = Rotation.from_matrix(R_world_panel @ self.pose[:3, :3].T).as_rotvec()
+        turn = np.linalg.solve(total, information @ seen)
+        self.pose[:3, :3] = Rotation.from_rotvec(turn).as_matrix() @ self.pose[:3, :3]
+        self.rotation_information = total
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One step's relative measurement: the fused displacement (world) or None, the
+    panel's pose where the best camera put it, and per camera what it found or why not."""
+
+    fused: Fused | None
+    panel: np.ndarray | None
+    cameras: dict[str, dict[str, Any]] = field(default_factory=dict)
+    fits: dict[str, Relative] = field(default_factory=dict)
+
+    @property
+    def why(self) -> dict[str, str]:
+        return {n: c["why"] for n, c in self.cameras.items() if "why" in c}
+
+
+class RelativeMeasurer:
+    """Measures the panel's displacement from its slot camera by camera."""
+
+    def __init__(self, rig: StereoRig, panel: Boxes, slot: Boxes, slot_belief: SlotBelief) -> None:
+        self.rig, self.panel, self.slot, self.belief = rig, panel, slot, slot_belief
+        self.slot_fits: dict[str, np.ndarray] = {}  # camera name -> slot pose (its frame)
+
+    def forget(self, name: str) -> None:
+        """A camera moved: its slot fit no longer holds."""
+        self.slot_fits.pop(name, None)
+
+    def _rotation_sd(self, cam: Camera) -> float:
+        return 0.0 if cam.trusted else UNCORRECTED_ROTATION_SD
+
+    def measure(self, cam: Camera, images: Images,
+                mask: np.ndarray | None, panel: PanelBelief
+                ) -> tuple[Relative | None, dict[str, Any], tuple[np.ndarray, np.ndarray] | None,
+                           np.ndarray | None]:
+        """One camera: its relative measurement, its record, its displacement and
+        covariance in the world (None if it measured nothing) and the panel's world pose
+        it fitted."""
+        name = cam.robot.name
+        if isinstance(images, str):
+            return None, {"why": images}, None, None
+        T_world_cam = opencv_pose(cam.believed)
+        T_cam_world = np.linalg.inv(T_world_cam)
+        slot_start = self.slot_fits.get(name)
+        slot_sd = SLOT_REFIT_SD
+        if slot_start is None:
+            slot_start, slot_sd = T_cam_world @ self.belief.pose, self.belief.sd
+        found = measure_relative(images, self.rig, self.panel, T_cam_world @ panel.pose,
+                                 (panel.position_sd_m, panel.rotation_sd_rad), self.slot,
+                                 slot_start, slot_sd, mask)
+        if found.displacement is None or found.covariance is None:
+            return found, {"why": found.why or "no measurement"}, None, None
+        assert found.object_fit is not None and found.goal_fit is not None
+        self.slot_fits[name] = found.goal_fit.pose
+        d, c = in_world(found.displacement, found.covariance, T_world_cam[:3, :3],
+                        self._rotation_sd(cam))
+        record = {"displacement": d.round(6).tolist(),
+                  "sd_m": np.sqrt(np.diag(c)).round(6).tolist(),
+                  "edges": {"panel": found.object_fit.inliers, "slot": found.goal_fit.inliers},
+                  "rms_px": {"panel": round(found.object_fit.rms_px, 3),
+                             "slot": round(found.goal_fit.rms_px, 3)}}
+        return found, record, (d, c), T_world_cam @ found.object_fit.pose
+
+    def step(self, cameras: list[Camera], pairs: dict[str, tuple[Images, np.ndarray | None]],
+             panel: PanelBelief) -> Measurement:
+        """Every camera's measurement of this step, fused; the panel's orientation
+        belief takes in every camera's fit."""
+        records: dict[str, dict[str, Any]] = {}
+        fits: dict[str, Relative] = {}
+        world: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        poses: dict[str, np.ndarray] = {}
+        for cam in cameras:
+            name = cam.robot.name
+            images, mask = pairs[name]
+            found, records[name], in_w, pose = self.measure(cam, images, mask, panel)
+            if found is not None:
+                fits[name] = found
+            if in_w is not None and pose is not None and found is not None \
+                    and found.object_fit is not None:
+                world[name], poses[name] = in_w, pose
+                R = opencv_pose(cam.believed)[:3, :3]
+                information = R @ found.object_fit.rotation_information() @ R.T
+                spread = self._rotation_sd(cam) ** 2  # the camera's own rotation error
+                if spread > 0:
+                    information = np.linalg.pinv(np.linalg.pinv(information) + spread * np.eye(3))
+                panel.observe_rotation(pose[:3, :3], information)
+        fused = fuse(world)
+        best = min(world, key=lambda n: float(np.trace(world[n][1])), default=None)
+        return Measurement(fused, None if best is None else poses[best], records, fits)

@@ -1,0 +1,163 @@
+"""The relative measurement (issue 19): the edge fit against a rendered, blurred panel at a
+known pose, the displacement's indifference to an error of the camera's pose, the fusion
+of cameras and the stop-on-confidence rule by hand."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from test_task import looking_at_the_slot, new_task, slot_belief_at
+
+from calibration.displacement import confident, fuse, in_world
+from calibration.edge_fit import Boxes, fit_edges, point_covariance
+from mapping import opencv_pose
+from sim.config.scenario import load_scenario
+from sim.config.schema import ScenarioError
+from sim.stages.relative import PanelBelief, RelativeMeasurer
+from sim.stages.task_result import Camera
+from sim.world.render import Renderer, camera_pinhole, camera_pose
+
+ABOVE = np.array([0.004, -0.006, 0.06])  # the panel over its slot, as near the end (m)
+
+
+@pytest.fixture(scope="module")
+def site():
+    """The default scene, one camera 0.85 m from the slot, the panel hanging ABOVE it;
+    the stereo pair through the lens; the true poses (camera frame) of panel and slot."""
+    base = load_scenario()
+    s = dataclasses.replace(base, task=dataclasses.replace(base.task, enabled=True))
+    scene, robot, data, slot = looking_at_the_slot(s)
+    pinhole = camera_pinhole(scene.model, robot.camera)
+    with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
+        task = new_task(s, scene, data, renderer, pinhole)
+        task._move_panel(slot + ABOVE)
+        belief = slot_belief_at(data)
+        camera = Camera(robot, camera_pose(data, robot.camera))
+        measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes, belief)
+        window = task._slot_window(camera, measurer)
+        pair = task.stereo_pair(robot.camera, robot.right_camera, window)
+        assert not isinstance(pair, str), pair
+        T_cam_world = np.linalg.inv(opencv_pose(camera.believed))
+        yield {"task": task, "pair": pair, "camera": camera, "belief": belief,
+               "panel": T_cam_world @ task.panel, "slot": T_cam_world @ belief.pose,
+               "truth": task.panel[:3, 3] - belief.position, "data": data}
+
+
+def _corners(boxes: Boxes, pose: np.ndarray) -> np.ndarray:
+    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
+    points = np.concatenate([c + signs * h for c, h in zip(boxes.centres, boxes.halves,
+                                                           strict=True)])
+    return points @ pose[:3, :3].T + pose[:3, 3]
+
+
+def _off(pose: np.ndarray, metres: float, degrees: float, rng: np.random.Generator
+         ) -> np.ndarray:
+    out = pose.copy()
+    out[:3, 3] += rng.normal(0.0, metres / math.sqrt(3), 3)
+    turn = Rotation.from_rotvec(np.radians(rng.normal(0.0, degrees / math.sqrt(3), 3)))
+    out[:3, :3] = turn.as_matrix() @ out[:3, :3]
+    return out
+
+
+def test_the_edge_fit_finds_a_blurred_panel_to_a_fraction_of_a_pixel(site):
+    """From starts 3 mm and 0.5 deg off, the panel's corners come back to within 0.25 px
+    of where the true pose projects them, in both images of the blurred pair."""
+    task, pair, rig = site["task"], site["pair"], site["task"].rig
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        start = _off(site["panel"], 0.003, 0.5, rng)
+        fit = fit_edges((pair.left, pair.right), task.panel_boxes, rig, start,
+                        (0.003, math.radians(0.5)), [(site["slot"], task.slot_boxes)],
+                        mask=pair.mask)
+        assert fit.ok, fit.why
+        for camera in (0, 1):
+            true = rig.project(_corners(task.panel_boxes, site["panel"]), camera)
+            found = rig.project(_corners(task.panel_boxes, fit.pose), camera)
+            assert np.abs(found - true).max() < 0.3
+        # the bottom edge's centre, the task's point, within a fraction of a pixel's size
+        # at this distance (0.85 m: 2 mm a pixel)
+        err = np.linalg.norm(fit.pose[:3, 3] - site["panel"][:3, 3])
+        assert err < 0.001, err
+        spread = np.sqrt(np.trace(point_covariance(fit, np.zeros(3))))
+        assert 0 < spread < 0.005
+
+
+def test_a_wrong_camera_pose_turns_the_displacement_but_does_not_shift_it(site):
+    """The camera believed 1 cm and 1 deg off: the absolute measurement (panel through the
+    pose, slot where it was believed) moves by about that centimetre, the relative one by
+    no more than the 1 deg turn of the 6 cm displacement and the fit's own error."""
+    task, pair, camera = site["task"], site["pair"], site["camera"]
+    wrong = camera.believed.copy()
+    wrong[:3, 3] += [0.006, -0.005, 0.006]
+    wrong[:3, :3] = Rotation.from_rotvec(np.radians([0.6, -0.5, 0.6])).as_matrix() @ wrong[:3, :3]
+    truth = site["truth"]
+    results = {}
+    for name, believed in (("right", camera.believed), ("wrong", wrong)):
+        # what was sighted through the believed pose (the holes, the panel's last fit) is
+        # where that pose puts it: the same place in the camera's frame
+        carried = opencv_pose(believed) @ np.linalg.inv(opencv_pose(camera.believed))
+        cam = dataclasses.replace(camera, believed=believed)
+        slot = dataclasses.replace(site["belief"], pose=carried @ site["belief"].pose)
+        measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes, slot)
+        start = carried @ task.panel
+        start[:3, 3] += [0.002, -0.002, 0.001]
+        belief = PanelBelief(start, 0.003, np.eye(3) / math.radians(0.5) ** 2)
+        found = measurer.step([cam], {cam.robot.name: ((pair.left, pair.right), pair.mask)},
+                              belief)
+        assert found.fused is not None, found.why
+        results[name] = found.fused.displacement
+        absolute, _ = task.measure([cam], start)
+        assert absolute is not None  # the slot: where the holes' frame put it beforehand
+        results[name + " absolute"] = absolute[:3, 3] - site["belief"].position
+    turn_bound = math.radians(1.0) * np.linalg.norm(truth)  # 1.05 mm
+    assert np.linalg.norm(results["right"] - truth) < 0.0008
+    assert np.linalg.norm(results["wrong"] - truth) < 0.0008 + turn_bound
+    moved_absolute = np.linalg.norm(results["wrong absolute"] - results["right absolute"])
+    moved_relative = np.linalg.norm(results["wrong"] - results["right"])
+    assert moved_absolute > 0.006 and moved_relative < turn_bound + 0.0005
+
+
+def test_cameras_fuse_by_inverse_covariance_by_hand():
+    a = (np.array([0.001, 0.0, 0.0]), np.diag([1e-8, 4e-8, 1e-8]))
+    b = (np.array([0.003, 0.002, 0.0]), np.diag([3e-8, 4e-8, 1e-8]))
+    fused = fuse({"r1": a, "r2": b})
+    assert fused is not None
+    # x: weights 1/1 and 1/3 -> (0.001 + 0.003 / 3) / (4 / 3) = 0.0015; y: equal -> 0.001
+    assert np.allclose(fused.displacement, [0.0015, 0.001, 0.0])
+    assert np.allclose(np.diag(fused.covariance), [0.75e-8, 2e-8, 0.5e-8])
+    # chi2: x (0.0005^2 / 1e-8 + 0.0015^2 / 3e-8) = 100, y 2 x (0.001^2 / 4e-8) = 50
+    assert fused.chi2 == pytest.approx(150.0)
+    assert fuse({}) is None
+
+
+def test_a_turned_camera_spreads_the_displacement_across_itself():
+    d, c = in_world(np.array([0.0, 0.0, 0.1]), np.zeros((3, 3)), np.eye(3), 0.01)
+    assert np.allclose(d, [0.0, 0.0, 0.1])
+    assert np.allclose(np.diag(c), [1e-6, 1e-6, 0.0])  # (0.01 rad x 0.1 m)^2 across
+
+
+def test_the_task_stops_when_confidently_within_the_tightest_tolerance():
+    """Tolerance 2 mm, share 0.5, two standard deviations: 0.9 mm measured with 0.4 mm sd
+    is confident (0.9 + 0.8 <= 2); with 0.6 mm it is not (0.9 + 1.2 > 2); 1.1 mm is not
+    within half the tolerance, however certain."""
+    tight = np.eye(3) * 0.0004 ** 2
+    loose = np.eye(3) * 0.0006 ** 2
+    d = np.array([0.0009, 0.0, 0.0])
+    assert confident(d, tight, 0.002, 0.5, 2.0)
+    assert not confident(d, loose, 0.002, 0.5, 2.0)
+    assert not confident(np.array([0.0011, 0.0, 0.0]), np.zeros((3, 3)), 0.002, 0.5, 2.0)
+    # the largest axis counts, whichever it is
+    assert not confident(d, np.diag([1e-10, 1e-10, 0.0006 ** 2]), 0.002, 0.5, 2.0)
+
+
+def test_the_retired_stop_key_names_its_successors(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text("[task]\nstop_m = 0.001\n")
+    with pytest.raises(ScenarioError) as caught:
+        load_scenario(path)
+    text = str(caught.value)
+    assert "task.stop_m" in text and "stop_share" in text and "\n" not in text
