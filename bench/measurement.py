@@ -84,10 +84,14 @@ def predicted_sd(depth_m: float, fx_px: float, baseline_m: float, sigma_px: floa
     return lateral, axial
 
 
+def view_truth(view: View) -> np.ndarray:
+    """The view's true displacement (world, m): panel minus slot."""
+    return view.true_panel[:3, 3] - view.true_slot
+
+
 def error_in_camera(view: View, measured: np.ndarray) -> np.ndarray:
     """Measured minus true displacement (m) in the true left camera's OpenCV frame."""
-    truth = view.true_panel[:3, 3] - view.true_slot
-    return opencv_pose(view.true_camera)[:3, :3].T @ (measured - truth)
+    return opencv_pose(view.true_camera)[:3, :3].T @ (measured - view_truth(view))
 
 
 def cell_stats(errors: list[np.ndarray]) -> dict[str, float | None]:
@@ -114,6 +118,7 @@ def run_cell(site: Site, distance: float, angle: float, occlusion: float, n: int
     why: dict[str, Counter[str]] = {name: Counter() for name in MEASUREMENTS}
     notes: dict[str, Counter[str]] = {name: Counter() for name in MEASUREMENTS}
     seconds: dict[str, float] = dict.fromkeys(MEASUREMENTS, 0.0)
+    spread: dict[str, list[float]] = {name: [] for name in MEASUREMENTS}  # Mahalanobis
     occluded, blur = [], []
     for _ in range(n):
         view = site.view(distance, angle, occlusion)
@@ -137,6 +142,10 @@ def run_cell(site: Site, distance: float, angle: float, occlusion: float, n: int
                 else:
                     clean[name].append(e)
                 record[name] = {"error_cam_mm": (e * 1e3).round(3).tolist(), "note": m.why}
+                if m.covariance is not None:  # the error in its own standard deviations
+                    off = m.displacement - view_truth(view)
+                    spread[name].append(float(np.sqrt(off @ np.linalg.solve(m.covariance, off))))
+                    record[name]["mahalanobis"] = round(spread[name][-1], 3)
         records.append(record)
     fx, b = site.pinhole.fx, site.scenario.camera.baseline_m
     lateral_sd, axial_sd = predicted_sd(distance, fx, b)
@@ -160,6 +169,9 @@ def run_cell(site: Site, distance: float, angle: float, occlusion: float, n: int
                      "why_failed": dict(why[name].most_common()),
                      "notes": dict(notes[name].most_common()),
                      "seconds_per_view": round(seconds[name] / n, 3)}
+        if spread[name]:  # the error against the measurement's own covariance
+            row[name]["mahalanobis_p50"] = round(float(np.percentile(spread[name], 50)), 2)
+            row[name]["mahalanobis_p95"] = round(float(np.percentile(spread[name], 95)), 2)
     # DESIGN.md's row keys: the first measurement's 95th-percentile lateral error against
     # the geometry's
     first = row[next(iter(MEASUREMENTS))]
@@ -265,6 +277,13 @@ def main() -> None:
     print(f"\ngrid {len(args.distances)} distances x {len(args.angles)} angles x "
           f"{len(args.occlusions)} occlusions = {len(cells)} cells x {n} views = "
           f"{len(cells) * n} views; {seconds:.0f} s")
+    for name in MEASUREMENTS:
+        pooled = [v[name]["mahalanobis"] for v in records
+                  if isinstance(v.get(name), dict) and "mahalanobis" in v[name]]
+        if pooled:  # a true covariance: the root of chi2 with 3 dof, 1.54 and 2.80
+            print(f"{name}: error / its own standard deviation (Mahalanobis), all views: "
+                  f"median {np.median(pooled):.2f} (1.54 if the covariance were true), "
+                  f"95th percentile {np.percentile(pooled, 95):.2f} (2.80)")
     if not whole:
         return
     path = write_results(

@@ -36,7 +36,7 @@ from sim.config.scenario import ObstacleConfig, Scenario
 from sim.config.sweep import load_sweep
 from sim.stages.look import target_sd
 from sim.stages.record import Recorder
-from sim.stages.relative import PanelBelief, RelativeMeasurer, believed_slot
+from sim.stages.relative import SLOT_FRAME_SD, PanelBelief, RelativeMeasurer, SlotBelief
 from sim.stages.task import InsertionTask
 from sim.stages.task_result import Camera
 from sim.stages.world import misplace_workpiece, new_grid
@@ -98,6 +98,7 @@ class Measured:
     why: str | None = None
     panel: np.ndarray | None = None  # the measured panel position and slot (world, m)
     slot: np.ndarray | None = None
+    covariance: np.ndarray | None = None  # of the displacement (world, m^2), if it has one
 
 
 class _SameImages:
@@ -341,25 +342,28 @@ def relative(site: Site, view: View) -> Measured:
     """The relative measurement (issue 19), as the task makes it at a step: the panel's
     CAD model and the slot's walls fitted to the edges of this camera's own pair
     (``InsertionTask.measure_relative``), the panel from the view's starting guess (1 cm
-    off, as a previous measurement leaves it), the slot from where the holes' frame puts
-    it (the episode's ``believed_slot``)."""
-    s, robot, task = site.scenario, site.robot, site.task
-    frame, sighted = holes_frame(site, view)
-    unknown, note = _slot_note(site, view, frame, sighted)
-    if unknown is not None:
-        return Measured(None, unknown)
-    slot = believed_slot(site.nominal_slot_pose, site.scene.targets, frame,
-                         s.workpiece.yaw_error_deg)
+    off, as a previous measurement leaves it), the slot from where the look stage's
+    holes' frame leaves it (the true slot off by ``SLOT_FRAME_SD``, the frame's error,
+    whether or not this view sights the holes: the task knows the slot from before)."""
+    robot, task, rng = site.robot, site.task, site.rng
+    true_slot = np.eye(4)
+    true_slot[:3, :3] = site.data.site("workpiece/slot").xmat.reshape(3, 3)
+    true_slot[:3, 3] = view.true_slot
+    believed = true_slot.copy()
+    believed[:3, 3] += rng.normal(0.0, SLOT_FRAME_SD[0], 3)
+    turn = Rotation.from_rotvec(rng.normal(0.0, SLOT_FRAME_SD[1], 3)).as_matrix()
+    believed[:3, :3] = turn @ believed[:3, :3]
     task.renderer = _SameImages(site.renderer, view)
     camera = Camera(robot, view.believed, POSE_SD_M, "corrected")
-    measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes, slot)
+    measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes,
+                                SlotBelief(believed, SLOT_FRAME_SD))
     belief = PanelBelief(view.guess.copy(), GUESS_SD_M, np.eye(3) / GUESS_SD_RAD ** 2)
     found = task.measure_relative([camera], measurer, belief)
     if found.fused is None or found.panel is None:
         return Measured(None, "; ".join(f"{n}: {w}" for n, w in found.why.items()))
     d = found.fused.displacement
     panel = found.panel[:3, 3]
-    return Measured(d, note, panel, panel - d)
+    return Measured(d, None, panel, panel - d, found.fused.covariance)
 
 
 # name -> measurement; each runs on every view

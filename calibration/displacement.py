@@ -22,6 +22,9 @@ from .edge_fit import Boxes, EdgeFit, StereoRig, fit_edges, point_covariance
 # The object's start, once the goal is fitted, is searched again from its first fit with
 # this uncertainty (m, rad): a first fit is this good where it is good at all
 REFIT_SD = (0.002, math.radians(0.3))
+# ... but only if the goal's fit moved it more than this (px) from where it was taken to
+# hide the object: a third of the edge fit's residual
+REFIT_MOVED_PX = 0.1
 
 
 @dataclass(frozen=True)
@@ -42,25 +45,29 @@ def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
                      object_boxes: Boxes, object_start: np.ndarray,
                      object_sd: tuple[float, float], goal_boxes: Boxes,
                      goal_start: np.ndarray, goal_sd: tuple[float, float],
-                     object_mask: np.ndarray | None = None) -> Relative:
+                     object_masks: tuple[np.ndarray, np.ndarray] | None = None) -> Relative:
     """Fit the object and the goal in one stereo pair (RGB) and return the displacement
     of the object's frame origin from the goal's (both models' frames put their point of
     interest at the origin). Starts are poses to the left camera (OpenCV), with their
-    uncertainty (m, rad per axis); ``object_mask`` (the object's pixels in the left
-    image, by its colour) aligns a far start. Each model hides the other: the object is
+    uncertainty (m, rad per axis); ``object_masks`` (the object's pixels in the left
+    and right images, by its colour) align a far start. Each model hides the other: the object is
     fitted with the goal at its start, the goal with the object as fitted, the object
     again with the goal as fitted."""
     first = fit_edges(images, object_boxes, rig, object_start, object_sd,
-                      [(goal_start, goal_boxes)], mask=object_mask)
+                      [(goal_start, goal_boxes)], masks=object_masks)
     if not first.ok:
         return Relative(None, None, first, None, f"object: {first.why}")
     goal = fit_edges(images, goal_boxes, rig, goal_start, goal_sd,
                      [(first.pose, object_boxes)])
     if not goal.ok:
         return Relative(None, None, first, goal, f"goal: {goal.why}")
-    again = fit_edges(images, object_boxes, rig, first.pose, REFIT_SD,
-                      [(goal.pose, goal_boxes)])
-    obj = again if again.ok and again.cost <= first.cost else first
+    obj = first
+    moved_px = rig.fx * float(np.linalg.norm(goal.pose[:3, 3] - goal_start[:3, 3])) / float(
+        goal.pose[2, 3])
+    if moved_px > REFIT_MOVED_PX:  # the goal was not where it hid the object from
+        again = fit_edges(images, object_boxes, rig, first.pose, REFIT_SD,
+                          [(goal.pose, goal_boxes)])
+        obj = again if again.ok and again.cost <= first.cost else first
     origin = np.zeros(3)
     displacement = obj.pose[:3, 3] - goal.pose[:3, 3]
     covariance = point_covariance(obj, origin) + point_covariance(goal, origin)
@@ -83,7 +90,10 @@ class Fused:
 
 def fuse(measured: dict[str, tuple[np.ndarray, np.ndarray]]) -> Fused | None:
     """The inverse-covariance mean of each camera's (displacement, covariance) in one
-    frame; None when there are none."""
+    frame; None when there are none. Where the cameras disagree by more than their
+    covariances allow (chi-square above its 3 (n - 1) degrees of freedom), the mean's
+    covariance is scaled by that ratio (the Birge ratio, squared): some camera's error is
+    larger than it says, and nothing tells which."""
     if not measured:
         return None
     information = {name: np.linalg.inv(c) for name, (_, c) in measured.items()}
@@ -91,6 +101,9 @@ def fuse(measured: dict[str, tuple[np.ndarray, np.ndarray]]) -> Fused | None:
     covariance = np.linalg.inv(total)
     mean = covariance @ sum(information[n] @ d for n, (d, _) in measured.items())
     chi2 = float(sum((d - mean) @ information[n] @ (d - mean) for n, (d, _) in measured.items()))
+    dof = 3 * (len(measured) - 1)
+    if dof and chi2 > dof:
+        covariance = covariance * (chi2 / dof)
     return Fused(mean, covariance, sorted(measured), chi2)
 
 
@@ -106,11 +119,21 @@ def in_world(displacement: np.ndarray, covariance: np.ndarray, R_world_cam: np.n
     return d, R_world_cam @ covariance @ R_world_cam.T + turned
 
 
-def confident(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: float,
-              share: float, sigmas: float) -> bool:
-    """Whether the displacement is within ``share`` of ``tolerance_m`` and its bound at
-    ``sigmas`` standard deviations (the largest axis of the covariance) is within the
-    tolerance itself: the true displacement is then within it with that confidence."""
+def stop_reason(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: float,
+                share: float, sigmas: float) -> str | None:
+    """Why the guided motion should stop here, if it should: the displacement is within
+    ``share`` of ``tolerance_m`` and its bound at ``sigmas`` standard deviations (the
+    covariance's largest axis) within the tolerance itself (the true displacement is
+    then within it with that confidence); or, where the measurement is too uncertain
+    ever to confirm that (``sigmas`` sd beyond the tolerance even at no displacement),
+    within ``share`` of it: no further step can be seen to do better. In between it goes
+    on: a step may bring the displacement near enough that its bound holds."""
     length = float(np.linalg.norm(displacement))
+    if length > share * tolerance_m:
+        return None
     worst = math.sqrt(max(float(np.linalg.eigvalsh(covariance).max()), 0.0))
-    return length <= share * tolerance_m and length + sigmas * worst <= tolerance_m
+    if length + sigmas * worst <= tolerance_m:
+        return "confident within the tightest tolerance"
+    if sigmas * worst > tolerance_m:
+        return "within stop_share of the tightest tolerance, which the measurement cannot confirm"
+    return None

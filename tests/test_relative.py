@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from test_task import looking_at_the_slot, new_task, slot_belief_at
 
-from calibration.displacement import confident, fuse, in_world
+from calibration.displacement import fuse, in_world, stop_reason
 from calibration.edge_fit import Boxes, fit_edges, point_covariance
 from mapping import opencv_pose
 from sim.config.scenario import load_scenario
@@ -72,7 +72,7 @@ def test_the_edge_fit_finds_a_blurred_panel_to_a_fraction_of_a_pixel(site):
         start = _off(site["panel"], 0.003, 0.5, rng)
         fit = fit_edges((pair.left, pair.right), task.panel_boxes, rig, start,
                         (0.003, math.radians(0.5)), [(site["slot"], task.slot_boxes)],
-                        mask=pair.mask)
+                        masks=(pair.mask, pair.right_mask))
         assert fit.ok, fit.why
         for camera in (0, 1):
             true = rig.project(_corners(task.panel_boxes, site["panel"]), camera)
@@ -106,7 +106,8 @@ def test_a_wrong_camera_pose_turns_the_displacement_but_does_not_shift_it(site):
         start = carried @ task.panel
         start[:3, 3] += [0.002, -0.002, 0.001]
         belief = PanelBelief(start, 0.003, np.eye(3) / math.radians(0.5) ** 2)
-        found = measurer.step([cam], {cam.robot.name: ((pair.left, pair.right), pair.mask)},
+        found = measurer.step([cam], {cam.robot.name: ((pair.left, pair.right),
+                                                       (pair.mask, pair.right_mask))},
                               belief)
         assert found.fused is not None, found.why
         results[name] = found.fused.displacement
@@ -128,9 +129,13 @@ def test_cameras_fuse_by_inverse_covariance_by_hand():
     assert fused is not None
     # x: weights 1/1 and 1/3 -> (0.001 + 0.003 / 3) / (4 / 3) = 0.0015; y: equal -> 0.001
     assert np.allclose(fused.displacement, [0.0015, 0.001, 0.0])
-    assert np.allclose(np.diag(fused.covariance), [0.75e-8, 2e-8, 0.5e-8])
-    # chi2: x (0.0005^2 / 1e-8 + 0.0015^2 / 3e-8) = 100, y 2 x (0.001^2 / 4e-8) = 50
+    # chi2: x (0.0005^2 / 1e-8 + 0.0015^2 / 3e-8) = 100, y 2 x (0.001^2 / 4e-8) = 50;
+    # against 3 degrees of freedom the covariance (0.75, 2, 0.5 x 1e-8) is scaled by 50
     assert fused.chi2 == pytest.approx(150.0)
+    assert np.allclose(np.diag(fused.covariance), np.array([0.75e-8, 2e-8, 0.5e-8]) * 50)
+    agreeing = fuse({"r1": a, "r2": (a[0] + [1e-4, 0.0, 0.0], a[1])})
+    assert agreeing is not None and agreeing.chi2 < 3
+    assert np.allclose(np.diag(agreeing.covariance), np.diag(a[1]) / 2)
     assert fuse({}) is None
 
 
@@ -142,16 +147,22 @@ def test_a_turned_camera_spreads_the_displacement_across_itself():
 
 def test_the_task_stops_when_confidently_within_the_tightest_tolerance():
     """Tolerance 2 mm, share 0.5, two standard deviations: 0.9 mm measured with 0.4 mm sd
-    is confident (0.9 + 0.8 <= 2); with 0.6 mm it is not (0.9 + 1.2 > 2); 1.1 mm is not
-    within half the tolerance, however certain."""
-    tight = np.eye(3) * 0.0004 ** 2
-    loose = np.eye(3) * 0.0006 ** 2
+    is confident (0.9 + 0.8 <= 2); with 0.7 mm sd it is not (0.9 + 1.4 > 2), but a
+    smaller displacement could be confirmed (1.4 <= 2): go on; with 1.1 mm sd none could
+    (2.2 > 2): stop, saying so; 1.1 mm is not within half the tolerance, however certain
+    or uncertain."""
+    def sd(*axes: float) -> np.ndarray:
+        return np.diag(np.square(axes))
+
     d = np.array([0.0009, 0.0, 0.0])
-    assert confident(d, tight, 0.002, 0.5, 2.0)
-    assert not confident(d, loose, 0.002, 0.5, 2.0)
-    assert not confident(np.array([0.0011, 0.0, 0.0]), np.zeros((3, 3)), 0.002, 0.5, 2.0)
+    assert stop_reason(d, sd(0.0004, 0, 0), 0.002, 0.5, 2.0) == (
+        "confident within the tightest tolerance")
+    assert stop_reason(d, sd(0.0007, 0, 0), 0.002, 0.5, 2.0) is None
+    assert "cannot confirm" in str(stop_reason(d, sd(0.0011, 0, 0), 0.002, 0.5, 2.0))
+    for spread in (np.zeros((3, 3)), sd(0.001, 0.001, 0.001)):
+        assert stop_reason(np.array([0.0011, 0.0, 0.0]), spread, 0.002, 0.5, 2.0) is None
     # the largest axis counts, whichever it is
-    assert not confident(d, np.diag([1e-10, 1e-10, 0.0006 ** 2]), 0.002, 0.5, 2.0)
+    assert stop_reason(d, sd(1e-5, 1e-5, 0.0007), 0.002, 0.5, 2.0) is None
 
 
 def test_the_retired_stop_key_names_its_successors(tmp_path):

@@ -41,6 +41,7 @@ UNCORRECTED_ROTATION_SD = math.radians(0.5)
 
 
 Images = tuple[np.ndarray, np.ndarray] | str  # a camera's stereo pair, or why it has none
+Masks = tuple[np.ndarray, np.ndarray] | None  # the panel's pixels in each image
 
 
 @dataclass(frozen=True)
@@ -152,7 +153,7 @@ class RelativeMeasurer:
         return 0.0 if cam.trusted else UNCORRECTED_ROTATION_SD
 
     def measure(self, cam: Camera, images: Images,
-                mask: np.ndarray | None, panel: PanelBelief
+                masks: Masks, panel: PanelBelief
                 ) -> tuple[Relative | None, dict[str, Any], tuple[np.ndarray, np.ndarray] | None,
                            np.ndarray | None]:
         """One camera: its relative measurement, its record, its displacement and
@@ -169,7 +170,7 @@ class RelativeMeasurer:
             slot_start, slot_sd = T_cam_world @ self.belief.pose, self.belief.sd
         found = measure_relative(images, self.rig, self.panel, T_cam_world @ panel.pose,
                                  (panel.position_sd_m, panel.rotation_sd_rad), self.slot,
-                                 slot_start, slot_sd, mask)
+                                 slot_start, slot_sd, masks)
         if found.displacement is None or found.covariance is None:
             return found, {"why": found.why or "no measurement"}, None, None
         assert found.object_fit is not None and found.goal_fit is not None
@@ -183,7 +184,7 @@ class RelativeMeasurer:
                              "slot": round(found.goal_fit.rms_px, 3)}}
         return found, record, (d, c), T_world_cam @ found.object_fit.pose
 
-    def step(self, cameras: list[Camera], pairs: dict[str, tuple[Images, np.ndarray | None]],
+    def step(self, cameras: list[Camera], pairs: dict[str, tuple[Images, Masks]],
              panel: PanelBelief) -> Measurement:
         """Every camera's measurement of this step, fused; the panel's orientation
         belief takes in every camera's fit."""
@@ -193,8 +194,8 @@ class RelativeMeasurer:
         poses: dict[str, np.ndarray] = {}
         for cam in cameras:
             name = cam.robot.name
-            images, mask = pairs[name]
-            found, records[name], in_w, pose = self.measure(cam, images, mask, panel)
+            images, masks = pairs[name]
+            found, records[name], in_w, pose = self.measure(cam, images, masks, panel)
             if found is not None:
                 fits[name] = found
             if in_w is not None and pose is not None and found is not None \

@@ -40,7 +40,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from calibration.displacement import confident
+from calibration.displacement import stop_reason
 from calibration.edge_fit import Boxes, StereoRig
 from calibration.panel import measuring_window, panel_mask, window
 from mapping import (
@@ -131,6 +131,7 @@ class StereoPair:
     mask: np.ndarray
     near: np.ndarray
     window: tuple[slice, slice]
+    right_mask: np.ndarray  # the panel's pixels in the right image
 
 
 def _union(a: tuple[slice, slice], b: tuple[slice, slice] | None) -> tuple[slice, slice]:
@@ -276,7 +277,9 @@ class InsertionTask:
         mask[rows, cols] = panel_mask(left[rows, cols])
         if mask.sum() < MIN_POINTS:
             return "panel not in view (occluded or outside the image)"
-        return StereoPair(left, right, mask, near, (rows, cols))
+        right_mask = np.zeros_like(near)
+        right_mask[rows, cols] = panel_mask(right[rows, cols])
+        return StereoPair(left, right, mask, near, (rows, cols), right_mask)
 
     def _panel_points(self, cam: Camera) -> np.ndarray | str:
         """World points of the panel in one camera's view, or why there are none."""
@@ -337,7 +340,7 @@ class InsertionTask:
             pair = self.stereo_pair(cam.robot.camera, cam.robot.right_camera,
                                     self._slot_window(cam, measurer))
             pairs[cam.robot.name] = (pair, None) if isinstance(pair, str) else (
-                (pair.left, pair.right), pair.mask)
+                (pair.left, pair.right), (pair.mask, pair.right_mask))
             self._last_pairs[cam.robot.name] = pair
         return measurer.step(cameras, pairs, panel)
 
@@ -445,8 +448,9 @@ class InsertionTask:
             self.recorder.panel(t, self.panel[:3, 3], pose[:3, 3],
                                 float(np.linalg.norm(displacement)))
             spread = np.zeros((3, 3)) if covariance is None else covariance
-            if confident(displacement, spread, tolerance, cfg.stop_share, cfg.stop_sigmas):
-                stopped_by = "confident within the tightest tolerance"
+            stop = stop_reason(displacement, spread, tolerance, cfg.stop_share, cfg.stop_sigmas)
+            if stop is not None:
+                stopped_by = stop
                 break
             goal = np.zeros(3)
             if not descending and np.linalg.norm(displacement[:2]) > OVER_SLOT_M:
