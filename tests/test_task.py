@@ -143,8 +143,28 @@ def test_episode_reports_the_task(default_run):
     assert flags["0.2"], task  # two corrected cameras, no occluder over the slot
     assert task["measurements"] >= 1 and task["steps"] >= task["measurements"]
     assert task["map_update"]["voxels_occupied"] > 0
+    assert task["lying"]["source"] in ("map", "nominal") and task["lying"]["why"]
+    # every step: each camera's measurement or why not, its view of the insertion site,
+    # and the fused displacement with its covariance
+    log = task["measurements_log"]
+    assert len(log) == task["steps"]
+    for entry in log:
+        assert set(entry["cameras"]) == {"r1", "r2"}
+        for camera in entry["cameras"].values():
+            assert "why" in camera or len(camera["sd_m"]) == 3
+    fused = [entry["fused"] for entry in log if "fused" in entry]
+    assert len(fused) == task["measurements"]
+    for f in fused:
+        C = np.array(f["covariance"])
+        assert C.shape == (3, 3) and np.allclose(C, C.T) and np.linalg.eigvalsh(C).min() > 0
+        assert np.allclose(np.sqrt(np.diag(C)), f["sd_m"], atol=2e-6)
+    rated = [c["site"] for entry in log if "fused" in entry for c in entry["cameras"].values()]
+    assert rated and all(r["rating"] >= 0 and 0 <= r["open"] <= 1 for r in rated)
     paths = set(RrdReader(out / "run.rrd").store().schema().entity_paths())
     assert {"/world/panel/true", "/world/panel/measured", "/task/displacement_m"} <= paths
+    # the edge points the fits matched, over each camera's image
+    assert {"/world/r1/task/left", "/world/r1/task/left/panel/matched",
+            "/world/r1/task/left/slot/matched"} <= paths
 
 
 @pytest.mark.slow
