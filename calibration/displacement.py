@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .edge_fit import Boxes, EdgeFit, StereoRig, fit_edges, point_covariance
+from .edge_fit import EdgeFit, fit_edges, point_covariance
+from .edge_model import Boxes, StereoRig
 
 # The object's start, once the goal is fitted, is searched again from its first fit with
 # this uncertainty (m, rad): a first fit is this good where it is good at all

@@ -13,7 +13,8 @@ from scipy.spatial.transform import Rotation
 from test_task import looking_at_the_slot, new_task, slot_belief_at
 
 from calibration.displacement import fuse, in_world, stop_reason
-from calibration.edge_fit import Boxes, fit_edges, point_covariance
+from calibration.edge_fit import fit_edges, point_covariance
+from calibration.edge_model import Boxes
 from mapping import opencv_pose
 from sim.config.scenario import load_scenario
 from sim.config.schema import ScenarioError

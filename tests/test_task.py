@@ -19,14 +19,8 @@ from sim.config.scenario import ObstacleConfig, Scenario, load_scenario
 from sim.experiments.audit import audit_run
 from sim.stages.record import Recorder
 from sim.stages.relative import SlotBelief
-from sim.stages.task import (
-    BLUR_MARGIN_PX,
-    MIN_POINTS,
-    InsertionTask,
-    Replacement,
-    _measuring_window,
-    panel_model,
-)
+from sim.stages.task import InsertionTask, Replacement, panel_model
+from sim.stages.task_images import BLUR_MARGIN_PX, MIN_POINTS, _measuring_window
 from sim.stages.task_result import Camera, TaskResult
 from sim.stages.world import new_grid
 from sim.world.ik import solve_camera_pose

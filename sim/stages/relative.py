@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calibration.displacement import Fused, Relative, fuse, in_world, measure_relative
-from calibration.edge_fit import Boxes, StereoRig
+from calibration.edge_model import Boxes, StereoRig
 from calibration.target_frame import frame_motion
 from calibration.targets import Target
 from mapping import opencv_pose

@@ -1,33 +1,33 @@
 """The visually guided insertion task (sec. 3): the placed cameras guide the panel into
-its slot, and success is judged from where it really ends.
+its slot, and success is judged from where it really ends (docs/task.md).
 
 1. **Carry.** The panel (a mocap body: carried kinematically) goes open-loop from where
-   it lies to a point ``approach_m`` above its slot, arriving ``carry_error_m`` off.
-2. **Measure.** Every placed camera renders its stereo pair through its lens (defocus
-   from the circle of confusion of each pixel's depth, sim/world/optics.py); stereo matching
-   gives depth; the panel's pixels are found by their colour (the hull of its yellow
-   squares) and carried into the world through the camera's corrected pose; the panel's
-   CAD model is fitted to the points of all cameras together, or, if they disagree,
-   of the best camera alone (mapping/cad.py). A step where no camera sees enough of
-   the panel, or the fit is poor, is a failed measurement: the panel waits, nothing is
-   guessed. Only the pixels this uses are rendered: around the panel's silhouette in
-   a coarse segmentation (the whole image when the panel reaches that window's edge),
-   and the right camera's window through its part of the frustum.
-3. **Update the map.** Each fitted pose moves the panel's voxels in the map, from its
-   last fitted pose to the new one (sec. 3, steps 1-4), without remapping.
-4. **Steer.** The slot's place comes from the common target frame the cameras measured
-   (its offset from the targets is known from the work-piece's CAD model). The panel is
-   moved by ``gain`` of the measured displacement (at most ``max_step_m``), staying
-   ``approach_m`` above the slot until it is over it (then it goes down, and is not
-   lifted again); each move errs by ``step_scale`` and ``step_noise_m``.
-5. **Re-place.** A camera that fails ``lost_limit`` steps running may be re-placed: the
-   rating function is searched again on the updated map (the episode does it).
+   it lies to a point ``approach_m`` above its slot, arriving ``carry_error_m`` off; the
+   task believes it picked it up where the robots perceived it lying.
+2. **Measure.** Every placed camera renders its stereo pair through its lens around the
+   panel and the slot (sim/stages/task_images.py). ``measurement = "relative"``: the
+   panel's and the slot's CAD models are fitted to the edges of its own pair, and the
+   displacement taken between them in its frame (sim/stages/relative.py); cameras are
+   fused by inverse covariance. ``"absolute"``: stereo points of the panel, through the
+   camera's pose, fitted with its CAD model (all cameras together, else the best alone),
+   minus the slot where the holes' frame puts it; the relative measurement also uses it
+   once to find the panel after the carry. A step no camera measures is a failed
+   measurement: the panel waits, nothing is guessed.
+3. **Update the map.** Each measured pose moves the panel's voxels in the map, from its
+   last pose to the new one, each with its uncertainty (sec. 3, steps 1-4).
+4. **Steer.** The panel is moved by ``gain`` of the measured displacement (at most
+   ``max_step_m``), staying ``approach_m`` above the slot until it is over it (then it
+   goes down, and is not lifted again); each move errs by ``step_scale`` and
+   ``step_noise_m``.
+5. **Re-place.** Each camera is rated on the insertion site every step (the panel one
+   more occluder); one whose rating stays well below what it had, or that loses the
+   panel ``lost_limit`` steps running, is placed again (the episode does it).
 
-It stops when the measured displacement is below ``stop_m``, after ``max_steps``, or
-when no camera can see the panel any more. Success for each tolerance (a fraction of
-the panel's size) is judged on the true final displacement. With no target frame
-measured (no camera located the primary target) the task is not attempted and fails
-every tolerance: there is no measured slot to guide to.
+It stops when the fused displacement is confidently within the tightest tolerance
+(``stop_share``, ``stop_sigmas``), after ``max_steps``, or when no camera can see the
+panel any more. Success for each tolerance (a fraction of the panel's size) is judged on
+the true final displacement. With no target frame measured (no camera located the
+primary target) the task is not attempted and fails every tolerance.
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ import mujoco
 import numpy as np
 
 from calibration.displacement import stop_reason
-from calibration.edge_fit import Boxes, StereoRig
-from calibration.panel import measuring_window, panel_mask, window
+from calibration.edge_model import Boxes, StereoRig
+from calibration.panel import window
 from mapping import (
     BoxModel,
     LyingPose,
@@ -54,7 +54,7 @@ from mapping import (
     support_layer,
 )
 from mapping.cad import to_object
-from mapping.stereo import StereoSettings, stereo_depth
+from mapping.stereo import stereo_depth
 from sim.config.scenario import TaskConfig
 from sim.stages.record import Recorder
 from sim.stages.relative import (
@@ -65,12 +65,12 @@ from sim.stages.relative import (
     slot_model,
 )
 from sim.stages.site_view import SiteWatch
+from sim.stages.task_images import MIN_POINTS, SETTINGS, StereoPair, TaskImages
 from sim.stages.task_result import Camera, TaskResult
-from sim.world.optics import Lens, defocus
+from sim.world.optics import Lens
 from sim.world.render import Renderer
 from sim.world.scene import Scene
 
-MIN_POINTS = 150  # panel points a measurement needs, over all cameras
 # A fit is good when half the points are this close to it and this many within 1 cm,
 # for the default camera (640 x 480, 60 deg: fx 416 px); stereo depth noise, and so the
 # first bound, grows as 1 / fx for smaller images.
@@ -84,18 +84,10 @@ REFERENCE_FX_PX = 415.7
 MAX_POINTS_PER_CAMERA = 3000
 STEP_S = 1.0  # simulated time per steering step, for the recording
 OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)
-BLUR_MARGIN_PX = 48  # blurred around the panel: 3 sigma of the widest blur level and more
-SETTINGS = StereoSettings()
-# Where the panel is in a view comes from a segmentation at 1/COARSE of the resolution;
-# only the pixels measuring uses around it are then rendered in full.
-COARSE = 2
 # The absolute measurement's panel pose is this good (m, rad per axis): its CAD fit to
 # stereo points errs 6-16 mm laterally (median-95th percentile) with the slot's error in
 # at 0.8-1.2 m (docs/measurement.md); it only starts the relative fits
 ABSOLUTE_SD = (0.01, math.radians(2.0))
-# Around the slot's walls the images are rendered this far (px) beyond their projection
-# at the fit's start: the widest alignment (edge_fit.MAX_REACH_PX) and the blur around it
-SLOT_MARGIN_PX = 48
 
 
 def panel_model(model: mujoco.MjModel) -> BoxModel:
@@ -121,50 +113,24 @@ class Replacement:
 Replace = Callable[[Camera, int, str, float | None, np.ndarray], Replacement | None]
 
 
-@dataclass(frozen=True)
-class StereoPair:
-    """A camera's two images through its lens (uint8, full size, black outside
-    ``window``), the panel's pixels in the left one, and its sharp pixels (``near``)."""
-
-    left: np.ndarray
-    right: np.ndarray
-    mask: np.ndarray
-    near: np.ndarray
-    window: tuple[slice, slice]
-    right_mask: np.ndarray  # the panel's pixels in the right image
-
-
-def _union(a: tuple[slice, slice], b: tuple[slice, slice] | None) -> tuple[slice, slice]:
-    """The smallest window (rows, columns) holding both."""
-    if b is None:
-        return a
-    return (slice(min(a[0].start, b[0].start), max(a[0].stop, b[0].stop)),
-            slice(min(a[1].start, b[1].start), max(a[1].stop, b[1].stop)))
-
-
-def _measuring_window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
-    """The window around ``mask`` measuring uses, with the stereo's disparity range."""
-    return measuring_window(mask, margin, SETTINGS.num_disparities)
-
-
-class InsertionTask:
-    """Runs the task in the world ``data`` with the placed cameras."""
+class InsertionTask(TaskImages):
+    """Runs the task in the world ``data`` with the placed cameras (seeing through
+    :class:`TaskImages`)."""
 
     def __init__(self, scene: Scene, world: mujoco.MjModel, data: mujoco.MjData,
                  renderer: Renderer,
                  pinhole: Pinhole, baseline_m: float, lens: Lens, grid: OccupancyGrid,
                  cfg: TaskConfig, rng: np.random.Generator, recorder: Recorder) -> None:
-        self.world, self.data, self.renderer, self.pinhole = world, data, renderer, pinhole
-        self.baseline_m, self.lens, self.grid, self.cfg = baseline_m, lens, grid, cfg
+        m = scene.model
+        super().__init__(data, renderer, pinhole, lens, m.geom("panel/panel").id,
+                         StereoRig(pinhole.width, pinhole.height, pinhole.fx, pinhole.fy,
+                                   pinhole.cx, pinhole.cy, baseline_m))
+        self.world, self.baseline_m, self.grid, self.cfg = world, baseline_m, grid, cfg
         self.noise_scale = max(1.0, REFERENCE_FX_PX / pinhole.fx)
         self.rng, self.recorder = rng, recorder
-        m = scene.model
         self.model = panel_model(m)  # the CAD model: the nominal one
         self.mocap = int(m.body_mocapid[m.body("panel/panel").id])
-        self.panel_geom = m.geom("panel/panel").id
         self.slot_site = m.site("workpiece/slot").id
-        self.rig = StereoRig(pinhole.width, pinhole.height, pinhole.fx, pinhole.fy, pinhole.cx,
-                             pinhole.cy, baseline_m)
         self.panel_boxes = Boxes(self.model.centres, self.model.halves)
         self.slot_boxes = slot_model(m)
         self._last_pairs: dict[str, StereoPair | str] = {}  # this step's, for the recording
@@ -229,58 +195,6 @@ class InsertionTask:
                        f"{on:.0%} within 1 cm")
         return None, {**why, "fit": failure} if seen else why or {"all": failure}
 
-    def _sharp_left(self, camera: str, include: tuple[slice, slice] | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[slice, slice]] | None:
-        """A left camera's sharp colour and depth (m), where the panel is (its yellow
-        pixels), and the window around them that measuring uses (rows, columns, with the
-        stereo's disparity range in front, and ``include`` if given); None if fewer than
-        MIN_POINTS panel pixels are in view. Only a window around the panel's silhouette in
-        a coarse segmentation is rendered (black, depth inf elsewhere); the whole image if
-        the panel reaches that window's edge."""
-        r, d = self.renderer, self.data
-        h, w = self.pinhole.height, self.pinhole.width
-        ys, xs = np.nonzero(r.segmentation(d, camera, COARSE) == self.panel_geom)
-        if len(ys) == 0:
-            return None
-        sy, sx = h / (h // COARSE), w / (w // COARSE)
-        silhouette = np.zeros((h, w), bool)  # its bounding box, in the image's pixels
-        silhouette[int(ys.min() * sy):int(np.ceil((ys.max() + 1) * sy)),
-                   int(xs.min() * sx):int(np.ceil((xs.max() + 1) * sx))] = True
-        around = _union(_measuring_window(silhouette, BLUR_MARGIN_PX + COARSE), include)
-        for rendered in (around, (slice(0, h), slice(0, w))):
-            sharp = np.zeros((h, w, 3), np.uint8)
-            depth = np.full((h, w), np.inf, np.float32)
-            sharp[rendered], depth[rendered] = r.rgb_and_depth(d, camera, rendered)
-            near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
-            if near.sum() < MIN_POINTS:
-                return None
-            rows, cols = _union(_measuring_window(near, BLUR_MARGIN_PX), include)
-            if all(outer.start <= inner.start and inner.stop <= outer.stop
-                   for outer, inner in zip(rendered, (rows, cols), strict=True)):
-                break
-        return sharp, depth, near, (rows, cols)
-
-    def stereo_pair(self, camera: str, right_camera: str,
-                    include: tuple[slice, slice] | None = None) -> StereoPair | str:
-        """Both images through the lens around the panel (and ``include``), the panel's
-        pixels in the left one, or why the panel is not in view."""
-        found = self._sharp_left(camera, include)
-        if found is None:
-            return "panel not in view (occluded or outside the image)"
-        sharp, sharp_depth, near, (rows, cols) = found
-        left = np.zeros_like(sharp)
-        left[rows, cols] = defocus(sharp[rows, cols], sharp_depth[rows, cols], self.lens)
-        right = np.zeros_like(sharp)
-        right[rows, cols] = defocus(*self.renderer.rgb_and_depth(self.data, right_camera,
-                                                                 (rows, cols)), self.lens)
-        mask = np.zeros_like(near)
-        mask[rows, cols] = panel_mask(left[rows, cols])
-        if mask.sum() < MIN_POINTS:
-            return "panel not in view (occluded or outside the image)"
-        right_mask = np.zeros_like(near)
-        right_mask[rows, cols] = panel_mask(right[rows, cols])
-        return StereoPair(left, right, mask, near, (rows, cols), right_mask)
-
     def _panel_points(self, cam: Camera) -> np.ndarray | str:
         """World points of the panel in one camera's view, or why there are none."""
         pair = self.stereo_pair(cam.robot.camera, cam.robot.right_camera)
@@ -299,28 +213,6 @@ class InsertionTask:
         in_cam = np.column_stack([(u - p.cx) * z / p.fx, (v - p.cy) * z / p.fy, z])
         T = opencv_pose(cam.believed)
         return in_cam @ T[:3, :3].T + T[:3, 3]
-
-    def _slot_window(self, cam: Camera, measurer: RelativeMeasurer
-                     ) -> tuple[slice, slice] | None:
-        """The pixels the slot's fit may search in this camera's left image: its walls'
-        projected box where the fit starts, with the searches' reach around it."""
-        T_cam_world = np.linalg.inv(opencv_pose(cam.believed))
-        start = measurer.slot_fits.get(cam.robot.name, T_cam_world @ measurer.belief.pose)
-        slot = measurer.slot
-        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
-        corners = np.concatenate([c + signs * h for c, h in zip(slot.centres, slot.halves,
-                                                               strict=True)])
-        X = corners @ start[:3, :3].T + start[:3, 3]
-        if (X[:, 2] <= 0.05).any():
-            return None
-        uv = self.rig.project(X, 0)
-        margin = SLOT_MARGIN_PX
-        h, w = self.pinhole.height, self.pinhole.width
-        rows = slice(int(np.clip(uv[:, 1].min() - margin, 0, h)),
-                     int(np.clip(uv[:, 1].max() + margin + 1, 0, h)))
-        cols = slice(int(np.clip(uv[:, 0].min() - margin - SETTINGS.num_disparities, 0, w)),
-                     int(np.clip(uv[:, 0].max() + margin + 1, 0, w)))
-        return None if rows.start >= rows.stop or cols.start >= cols.stop else (rows, cols)
 
     def _relocate(self, cameras: list[Camera], belief: PanelBelief) -> None:
         """Where the relative measurement's fits start when the belief is coarse (after

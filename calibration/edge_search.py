@@ -1,0 +1,158 @@
+"""Where a box model's edges are in an image: the colour step nearest each predicted
+edge point along its normal (sub-pixel), and, for a start too uncertain for that, the
+image shift that puts the whole model on the image's edges, or its silhouette on the
+object's colour region (calibration/edge_fit.py uses both)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .edge_model import Boxes, Samples, StereoRig
+
+MIN_STEP = 12.0  # a colour step weaker than this (RGB 0-255 per pixel of profile) is no edge
+MAX_REACH_PX = 20  # edges are aligned at most this far: beyond, texture outnumbers them
+DEPTH_HYPOTHESES = 9  # distances tried by the region alignment, across +-3 sd
+MAX_REGION_REACH_PX = 80  # a region at most this far (its object's colour does not alias)
+HYPOTHESES = 4  # starts fitted from the alignment's best shifts
+HYPOTHESIS_SHARE = 0.7  # ... those scoring at least this share of the best
+
+
+def search_edges(image: np.ndarray, pixels: np.ndarray, normals: np.ndarray,
+                 reach_px: int, limit: np.ndarray | None = None) -> np.ndarray:
+    """Signed offset (px, along each normal) of the strongest colour step within
+    ``reach_px`` of each pixel (and within its ``limit``, px, if given) that is a local
+    maximum nearest it, interpolated between pixels; NaN where there is none. ``image``
+    is float (h, w, channels)."""
+    offsets = np.arange(-reach_px - 2, reach_px + 3, dtype=np.float32)  # two more each end
+    xs = (pixels[:, None, 0] + offsets[None, :] * normals[:, None, 0]).astype(np.float32)
+    ys = (pixels[:, None, 1] + offsets[None, :] * normals[:, None, 1]).astype(np.float32)
+    profile = cv2.remap(image, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    profile = profile.reshape(len(pixels), len(offsets), -1)
+    step = np.linalg.norm(profile[:, 2:] - profile[:, :-2], axis=2) / 2  # -reach-1 .. reach+1
+    inner = step[:, 1:-1]  # -reach .. reach
+    left, right = step[:, :-2], step[:, 2:]
+    peak = (inner >= left) & (inner > right) & (inner >= MIN_STEP)
+    at = np.arange(-reach_px, reach_px + 1)
+    if limit is not None:
+        peak &= np.abs(at)[None, :] <= limit[:, None]
+    distance = np.where(peak, np.abs(at)[None, :], np.inf)
+    # the nearest peak among those at least half as strong as the strongest in reach
+    strong = inner >= 0.5 * np.max(np.where(peak, inner, 0.0), axis=1, keepdims=True)
+    distance = np.where(strong, distance, np.inf)
+    best = np.argmin(distance, axis=1)
+    found = np.isfinite(distance[np.arange(len(best)), best])
+    k = np.arange(len(best))
+    y0, y1, y2 = left[k, best], inner[k, best], right[k, best]
+    curvature = y0 - 2 * y1 + y2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shift = np.where(curvature < 0, 0.5 * (y0 - y2) / curvature, 0.0)
+    result = at[best] + np.clip(shift, -0.5, 0.5)
+    return np.where(found, result, np.nan)
+
+
+def search_reach_px(pose: np.ndarray, boxes: Boxes, rig: StereoRig, sd_m: float,
+                    sd_rad: float) -> int:
+    """How far (px) to search at first: three standard deviations of where an edge of the
+    model at ``pose`` may project, for a pose uncertain by ``sd_m`` and ``sd_rad``."""
+    corners = boxes.centres + boxes.halves  # any point of the model: a lever arm
+    X = corners @ pose[:3, :3].T + pose[:3, 3]
+    lever = float(np.max(np.linalg.norm(X - X.mean(axis=0), axis=1))) + float(
+        np.max(np.linalg.norm(boxes.halves, axis=1)))
+    z = float(np.min(X[:, 2]))
+    return int(np.ceil(3 * (sd_m + sd_rad * lever) * rig.fx / max(z, 1e-3)))
+
+
+def align(frames: list[np.ndarray], samples: list[Samples], reach_px: int
+          ) -> list[np.ndarray]:
+    """Image shifts (du, dv, px, within ``reach_px``) that put the model's projected edges
+    on colour steps across them, in both images at once: the local maxima of that score
+    over an exhaustive search, best first, down to HYPOTHESIS_SHARE of the best. A model
+    of parallel edges (rails, a thin panel's faces) scores nearly as well one edge over:
+    each of these is then fitted, and the fit that explains the most edges is kept."""
+    shifts = np.arange(-reach_px, reach_px + 1, dtype=np.float32)
+    du, dv = np.meshgrid(shifts, shifts)
+    score = np.zeros(du.shape, np.float32)
+    for frame, sample in zip(frames, samples, strict=True):
+        if len(sample.points) == 0:
+            continue
+        gx, gy = _gradients(frame)
+        xs = (sample.pixels[:, 0, None] + du.ravel()[None, :]).astype(np.float32)
+        ys = (sample.pixels[:, 1, None] + dv.ravel()[None, :]).astype(np.float32)
+        sx = cv2.remap(gx, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        sy = cv2.remap(gy, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        n = sample.normals
+        across = np.linalg.norm(sx * n[:, None, 0:1] + sy * n[:, None, 1:2], axis=-1)
+        # a sample counts once, however strong its step: texture must not outvote edges
+        score += np.minimum(across / (2 * MIN_STEP), 1.0).sum(axis=0).reshape(du.shape)
+    peaks = (score == cv2.dilate(score, np.ones((3, 3), np.uint8))) & (
+        score >= HYPOTHESIS_SHARE * score.max()) & (score > 0)
+    order = np.argsort(-score[peaks])[:HYPOTHESES]
+    return [np.array([du[peaks][i], dv[peaks][i]]) for i in order]
+
+
+def silhouette(pose: np.ndarray, boxes: Boxes, rig: StereoRig, shape: tuple[int, int],
+               camera: int = 0) -> np.ndarray:
+    """The model's silhouette in camera ``camera``'s image (bool, ``shape``): its boxes'
+    projected hulls."""
+    out = np.zeros(shape, np.uint8)
+    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+    for c, h in zip(boxes.centres, boxes.halves, strict=True):
+        X = (c + signs * h) @ pose[:3, :3].T + pose[:3, 3]
+        if (X[:, 2] <= 0).any():
+            continue
+        hull = cv2.convexHull(np.round(rig.project(X, camera)).astype(np.int32))
+        cv2.fillConvexPoly(out, hull, 1)
+    return out.astype(bool)
+
+
+def _region_scores(mask: np.ndarray, pose: np.ndarray, boxes: Boxes, rig: StereoRig,
+                   camera: int, reach_px: int) -> np.ndarray | None:
+    """For every image shift within ``reach_px`` ((2 reach + 1)^2, rows then columns):
+    silhouette pixels on ``mask`` minus those off it."""
+    shape = silhouette(pose, boxes, rig, mask.shape, camera)
+    ys, xs = np.nonzero(shape)
+    if len(ys) == 0:
+        return None
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    signed = np.pad(2 * mask.astype(np.float32) - 1, reach_px, constant_values=-1)
+    area = signed[y0:y1 + 2 * reach_px, x0:x1 + 2 * reach_px]
+    template = shape[y0:y1, x0:x1].astype(np.float32)
+    if area.shape[0] < template.shape[0] or area.shape[1] < template.shape[1]:
+        return None
+    return cv2.matchTemplate(area, template, cv2.TM_CCORR)
+
+
+def align_region(masks: tuple[np.ndarray, np.ndarray], pose: np.ndarray, boxes: Boxes,
+                 rig: StereoRig, reach_px: int, depth_sd_m: float) -> np.ndarray:
+    """The pose, moved from ``pose`` across the image (within ``reach_px``) and along the
+    line of sight (within three ``depth_sd_m``), whose silhouettes best lay over
+    ``masks``, the object's pixels in the left and right images (found by its colour):
+    each silhouette pixel on a mask counts one, off it minus one. Regions do not alias
+    as parallel edges and texture do, and the two images together tell the distance
+    (by the disparity, where the region's size cannot: a thin panel seen end-on)."""
+    centre = pose[:3, :3] @ boxes.centres.mean(axis=0) + pose[:3, 3]
+    ray = centre / np.linalg.norm(centre)
+    best, best_pose = -np.inf, pose
+    for along in np.linspace(-3 * depth_sd_m, 3 * depth_sd_m, DEPTH_HYPOTHESES):
+        moved = pose.copy()
+        moved[:3, 3] += along * ray
+        z = float((moved[:3, :3] @ boxes.centres.mean(axis=0) + moved[:3, 3])[2])
+        if z <= 0.05:
+            continue
+        maps = [_region_scores(m, moved, boxes, rig, c, reach_px) for c, m in enumerate(masks)]
+        if any(m is None for m in maps):
+            continue
+        score = sum(m for m in maps if m is not None)
+        assert isinstance(score, np.ndarray)
+        if float(score.max()) > best:
+            dv, du = np.unravel_index(int(np.argmax(score)), score.shape)
+            moved[:3, 3] += [(du - reach_px) * z / rig.fx, (dv - reach_px) * z / rig.fy, 0.0]
+            best, best_pose = float(score.max()), moved
+    return best_pose
+
+
+def _gradients(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An image's colour gradients along x and y (per channel, per pixel)."""
+    return (cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3) / 8,
+            cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3) / 8)

@@ -1,0 +1,139 @@
+"""What the insertion task sees: each placed camera's stereo pair through its lens, rendered
+only around the panel (and the slot's walls, when the relative measurement needs them),
+and the panel's pixels in it (the hull of its yellow)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from calibration.edge_model import StereoRig
+from calibration.panel import measuring_window, panel_mask
+from mapping import Pinhole, opencv_pose
+from mapping.stereo import StereoSettings
+from sim.stages.relative import RelativeMeasurer
+from sim.stages.task_result import Camera
+from sim.world.optics import Lens, defocus
+from sim.world.render import Renderer
+
+MIN_POINTS = 150  # panel pixels (and points) a measurement needs, over all cameras
+BLUR_MARGIN_PX = 48  # blurred around the panel: 3 sigma of the widest blur level and more
+SETTINGS = StereoSettings()
+# Where the panel is in a view comes from a segmentation at 1/COARSE of the resolution;
+# only the pixels measuring uses around it are then rendered in full.
+COARSE = 2
+# Around the slot's walls the images are rendered this far (px) beyond their projection
+# at the fit's start: the widest alignment (edge_search.MAX_REACH_PX) and the blur around it
+SLOT_MARGIN_PX = 48
+
+
+@dataclass(frozen=True)
+class StereoPair:
+    """A camera's two images through its lens (uint8, full size, black outside
+    ``window``), the panel's pixels in the left one, and its sharp pixels (``near``)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    mask: np.ndarray
+    near: np.ndarray
+    window: tuple[slice, slice]
+    right_mask: np.ndarray  # the panel's pixels in the right image
+
+
+def _union(a: tuple[slice, slice], b: tuple[slice, slice] | None) -> tuple[slice, slice]:
+    """The smallest window (rows, columns) holding both."""
+    if b is None:
+        return a
+    return (slice(min(a[0].start, b[0].start), max(a[0].stop, b[0].stop)),
+            slice(min(a[1].start, b[1].start), max(a[1].stop, b[1].stop)))
+
+
+def _measuring_window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
+    """The window around ``mask`` measuring uses, with the stereo's disparity range."""
+    return measuring_window(mask, margin, SETTINGS.num_disparities)
+
+
+class TaskImages:
+    """Renders what the task's cameras see of the panel in ``data`` (``renderer``, the
+    cameras' ``pinhole`` and ``lens``; the panel's geom, ``panel_geom``)."""
+
+    def __init__(self, data: mujoco.MjData, renderer: Renderer, pinhole: Pinhole, lens: Lens,
+                 panel_geom: int, rig: StereoRig) -> None:
+        self.data, self.renderer, self.pinhole, self.lens = data, renderer, pinhole, lens
+        self.panel_geom, self.rig = panel_geom, rig
+
+    def _sharp_left(self, camera: str, include: tuple[slice, slice] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[slice, slice]] | None:
+        """A left camera's sharp colour and depth (m), where the panel is (its yellow
+        pixels), and the window around them that measuring uses (rows, columns, with the
+        stereo's disparity range in front, and ``include`` if given); None if fewer than
+        MIN_POINTS panel pixels are in view. Only a window around the panel's silhouette in
+        a coarse segmentation is rendered (black, depth inf elsewhere); the whole image if
+        the panel reaches that window's edge."""
+        r, d = self.renderer, self.data
+        h, w = self.pinhole.height, self.pinhole.width
+        ys, xs = np.nonzero(r.segmentation(d, camera, COARSE) == self.panel_geom)
+        if len(ys) == 0:
+            return None
+        sy, sx = h / (h // COARSE), w / (w // COARSE)
+        silhouette = np.zeros((h, w), bool)  # its bounding box, in the image's pixels
+        silhouette[int(ys.min() * sy):int(np.ceil((ys.max() + 1) * sy)),
+                   int(xs.min() * sx):int(np.ceil((xs.max() + 1) * sx))] = True
+        around = _union(_measuring_window(silhouette, BLUR_MARGIN_PX + COARSE), include)
+        for rendered in (around, (slice(0, h), slice(0, w))):
+            sharp = np.zeros((h, w, 3), np.uint8)
+            depth = np.full((h, w), np.inf, np.float32)
+            sharp[rendered], depth[rendered] = r.rgb_and_depth(d, camera, rendered)
+            near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
+            if near.sum() < MIN_POINTS:
+                return None
+            rows, cols = _union(_measuring_window(near, BLUR_MARGIN_PX), include)
+            if all(outer.start <= inner.start and inner.stop <= outer.stop
+                   for outer, inner in zip(rendered, (rows, cols), strict=True)):
+                break
+        return sharp, depth, near, (rows, cols)
+
+    def stereo_pair(self, camera: str, right_camera: str,
+                    include: tuple[slice, slice] | None = None) -> StereoPair | str:
+        """Both images through the lens around the panel (and ``include``), the panel's
+        pixels in the left one, or why the panel is not in view."""
+        found = self._sharp_left(camera, include)
+        if found is None:
+            return "panel not in view (occluded or outside the image)"
+        sharp, sharp_depth, near, (rows, cols) = found
+        left = np.zeros_like(sharp)
+        left[rows, cols] = defocus(sharp[rows, cols], sharp_depth[rows, cols], self.lens)
+        right = np.zeros_like(sharp)
+        right[rows, cols] = defocus(*self.renderer.rgb_and_depth(self.data, right_camera,
+                                                                 (rows, cols)), self.lens)
+        mask = np.zeros_like(near)
+        mask[rows, cols] = panel_mask(left[rows, cols])
+        if mask.sum() < MIN_POINTS:
+            return "panel not in view (occluded or outside the image)"
+        right_mask = np.zeros_like(near)
+        right_mask[rows, cols] = panel_mask(right[rows, cols])
+        return StereoPair(left, right, mask, near, (rows, cols), right_mask)
+
+    def _slot_window(self, cam: Camera, measurer: RelativeMeasurer
+                     ) -> tuple[slice, slice] | None:
+        """The pixels the slot's fit may search in this camera's left image: its walls'
+        projected box where the fit starts, with the searches' reach around it."""
+        T_cam_world = np.linalg.inv(opencv_pose(cam.believed))
+        start = measurer.slot_fits.get(cam.robot.name, T_cam_world @ measurer.belief.pose)
+        slot = measurer.slot
+        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
+        corners = np.concatenate([c + signs * h for c, h in zip(slot.centres, slot.halves,
+                                                               strict=True)])
+        X = corners @ start[:3, :3].T + start[:3, 3]
+        if (X[:, 2] <= 0.05).any():
+            return None
+        uv = self.rig.project(X, 0)
+        margin = SLOT_MARGIN_PX
+        h, w = self.pinhole.height, self.pinhole.width
+        rows = slice(int(np.clip(uv[:, 1].min() - margin, 0, h)),
+                     int(np.clip(uv[:, 1].max() + margin + 1, 0, h)))
+        cols = slice(int(np.clip(uv[:, 0].min() - margin - SETTINGS.num_disparities, 0, w)),
+                     int(np.clip(uv[:, 0].max() + margin + 1, 0, w)))
+        return None if rows.start >= rows.stop or cols.start >= cols.stop else (rows, cols)
