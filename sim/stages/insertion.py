@@ -76,9 +76,11 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
 
     def replace(cam: Camera, step: int, reason: str, current: float | None,
                 panel: np.ndarray) -> Replacement | None:
-        """Search the updated map for the best view of the insertion site, the panel
-        where it was measured as one more occluder; move there unless the view now is
-        rated (``current``) near enough to it that the move does not pay."""
+        """Place a camera again on the updated map. One whose view of the insertion site
+        fell (``current``, its rating now) is searched for the best view of the site, the
+        panel where it was measured as one more occluder, and moves there unless that
+        view is not worth the move; one that lost the panel (``current`` None) is placed
+        for the targets again, as it first was, wherever it can see them."""
         if not s.task.replace:
             return None
         name = cam.robot.name
@@ -86,15 +88,16 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
         taken = [p.commanded for other, p in at.items()
                  if other != name and p.commanded is not None]
         problem = RatingProblem(world.grid, s)
-        extra = [box_corners(task.model, panel)]
         record: dict[str, Any] = {"step": step, "robot": name, "reason": reason}
+        goals, extra = targets, []
         if current is not None:
-            ranked = ranked_field(world, problem, cam.robot, (site,), taken, method, extra)
+            goals, extra = (site,), [box_corners(task.model, panel)]
+            ranked = ranked_field(world, problem, cam.robot, goals, taken, method, extra)
             best = float(ranked.ratings.total.max()) if len(ranked.ratings.total) else 0.0
             record.update(site_rating=round(current, 6), best_rating=round(best, 6))
             if not watch.trigger.worth_the_move(name, current, best):
                 return Replacement({**record, "placed": False, "worth_the_move": False}, None)
-        again = place(world, problem, cam.robot, taken, (site,), method, corrector, prior_sd,
+        again = place(world, problem, cam.robot, taken, goals, method, corrector, prior_sd,
                       index=len(history), step=step, reason=reason, extra=extra)
         history.append(again)
         record.update(placed=again.placed, placement=again.index)

@@ -164,13 +164,18 @@ class RelativeMeasurer:
             return None, {"why": images}, None, None
         T_world_cam = opencv_pose(cam.believed)
         T_cam_world = np.linalg.inv(T_world_cam)
+        # what the task believes in the world is where this camera's believed pose puts
+        # it: that pose's own error (m at a metre) adds to both starts' uncertainty
+        own = cam.pose_sd_m
         slot_start = self.slot_fits.get(name)
         slot_sd = SLOT_REFIT_SD
         if slot_start is None:
-            slot_start, slot_sd = T_cam_world @ self.belief.pose, self.belief.sd
+            slot_start = T_cam_world @ self.belief.pose
+            slot_sd = (math.hypot(self.belief.sd[0], own), self.belief.sd[1])
         found = measure_relative(images, self.rig, self.panel, T_cam_world @ panel.pose,
-                                 (panel.position_sd_m, panel.rotation_sd_rad), self.slot,
-                                 slot_start, slot_sd, masks)
+                                 (math.hypot(panel.position_sd_m, own),
+                                  panel.rotation_sd_rad), self.slot, slot_start, slot_sd,
+                                 masks)
         if found.displacement is None or found.covariance is None:
             return found, {"why": found.why or "no measurement"}, None, None
         assert found.object_fit is not None and found.goal_fit is not None
