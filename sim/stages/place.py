@@ -66,8 +66,8 @@ def ranked_field(world: World, problem: RatingProblem, robot: Robot,
     if method == "biased_random":
         return biased_random(rated, [target_model(t) for t in targets], problem.camera,
                              world.rng, s.search.random_max_angle_deg)
-    if method == "information_gain":
-        primary = world.scene.primary
+    if method == "information_gain":  # about the primary target, or what is searched for
+        primary = next((t for t in targets if t.role == "primary"), targets[0])
         interest = region_mask(problem.grid, primary.position, np.array(s.mapping.region_half_m))
         gains = gain_model(s, problem.grid, world.pinhole, interest)
         with world.timer("placement"):
