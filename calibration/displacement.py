@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -88,6 +89,12 @@ class Fused:
     def sd_m(self) -> np.ndarray:
         return np.sqrt(np.diag(self.covariance))
 
+    def summary(self) -> dict[str, Any]:
+        return {"displacement": self.displacement.round(6).tolist(),
+                "covariance": self.covariance.round(10).tolist(),
+                "sd_m": self.sd_m.round(6).tolist(), "cameras": self.cameras,
+                "chi2": round(self.chi2, 3)}
+
 
 def fuse(measured: dict[str, tuple[np.ndarray, np.ndarray]]) -> Fused | None:
     """The inverse-covariance mean of each camera's (displacement, covariance) in one
@@ -120,6 +127,11 @@ def in_world(displacement: np.ndarray, covariance: np.ndarray, R_world_cam: np.n
     return d, R_world_cam @ covariance @ R_world_cam.T + turned
 
 
+def largest_sd(covariance: np.ndarray) -> float:
+    """The standard deviation along a covariance's most uncertain axis."""
+    return math.sqrt(max(float(np.linalg.eigvalsh(covariance).max()), 0.0))
+
+
 def stop_reason(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: float,
                 share: float, sigmas: float) -> str | None:
     """Why the guided motion should stop here, if it should: the displacement is within
@@ -132,7 +144,7 @@ def stop_reason(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: f
     length = float(np.linalg.norm(displacement))
     if length > share * tolerance_m:
         return None
-    worst = math.sqrt(max(float(np.linalg.eigvalsh(covariance).max()), 0.0))
+    worst = largest_sd(covariance)
     if length + sigmas * worst <= tolerance_m:
         return "confident within the tightest tolerance"
     if sigmas * worst > tolerance_m:

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mapping.camera import Pinhole
+
 SAMPLE_SPACING_PX = 2.0  # one search per this many pixels of projected edge
 END_MARGIN = 0.12  # no searches in this share of an edge at each end: corners mislead
 
@@ -36,22 +38,14 @@ class Boxes:
 
 
 @dataclass(frozen=True)
-class StereoRig:
-    """A rectified stereo pair's intrinsics (px) and baseline (m)."""
+class StereoRig(Pinhole):
+    """A rectified stereo pair: the cameras' intrinsics (px) and their baseline (m)."""
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    baseline_m: float
+    baseline_m: float = 0.0
 
-    def project(self, points: np.ndarray, camera: int) -> np.ndarray:
+    def project(self, points: np.ndarray, camera: int = 0) -> np.ndarray:
         """Pixels (n, 2) of left-camera points (n, 3) in camera 0 (left) or 1 (right)."""
-        x = points[:, 0] - camera * self.baseline_m
-        return np.stack([self.fx * x / points[:, 2] + self.cx,
-                         self.fy * points[:, 1] / points[:, 2] + self.cy], -1)
+        return super().project(points - [camera * self.baseline_m, 0.0, 0.0])
 
 
 def box_edges(boxes: Boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -58,20 +58,26 @@ def sphere(directions: int) -> tuple[np.ndarray, np.ndarray]:
     return dirs, table.reshape(LOOKUP).astype(np.int32)
 
 
+@nb.njit(cache=True, inline="always")
+def _cell(offset: np.ndarray, levels: np.ndarray, na: int, npol: int) -> tuple[int, int, int]:
+    """An offset's distance level and its cell (azimuth, polar) of the direction table."""
+    x, y, z = offset[0], offset[1], offset[2]
+    d = np.sqrt(x * x + y * y + z * z)
+    k = min(np.searchsorted(levels, d), len(levels) - 1)
+    az = np.arctan2(y, x)
+    pol = np.arccos(min(max(z / max(d, 1e-12), -1.0), 1.0))
+    a = min(max(int((az + np.pi) / (2 * np.pi) * na), 0), na - 1)
+    p = min(max(int(pol / np.pi * npol), 0), npol - 1)
+    return k, a, p
+
+
 @nb.njit(cache=True, parallel=True)
 def _lookup(offsets: np.ndarray, levels: np.ndarray, clearance: np.ndarray,
             table: np.ndarray) -> np.ndarray:
     """Clearance / pi at each offset's distance level and nearest sphere direction."""
     out = np.empty(len(offsets))
-    na, npol = table.shape
     for i in nb.prange(len(offsets)):
-        x, y, z = offsets[i, 0], offsets[i, 1], offsets[i, 2]
-        d = np.sqrt(x * x + y * y + z * z)
-        k = min(np.searchsorted(levels, d), len(levels) - 1)
-        az = np.arctan2(y, x)
-        pol = np.arccos(min(max(z / max(d, 1e-12), -1.0), 1.0))
-        a = min(max(int((az + np.pi) / (2 * np.pi) * na), 0), na - 1)
-        p = min(max(int(pol / np.pi * npol), 0), npol - 1)
+        k, a, p = _cell(offsets[i], levels, table.shape[0], table.shape[1])
         out[i] = clearance[k, table[a, p]] / np.pi
     return out
 
@@ -316,15 +322,8 @@ def _clearance_at(offsets: np.ndarray, levels: np.ndarray, table: np.ndarray,
     """Clearance / pi of each offset as :func:`_lookup` reads it from the table
     :func:`_clearance` builds, computed for its own level and direction only."""
     out = np.empty(len(offsets))
-    na, npol = table.shape
     for i in range(len(offsets)):
-        x, y, z = offsets[i, 0], offsets[i, 1], offsets[i, 2]
-        d = np.sqrt(x * x + y * y + z * z)
-        k = min(np.searchsorted(levels, d), len(levels) - 1)
-        az = np.arctan2(y, x)
-        pol = np.arccos(min(max(z / max(d, 1e-12), -1.0), 1.0))
-        a = min(max(int((az + np.pi) / (2 * np.pi) * na), 0), na - 1)
-        p = min(max(int(pol / np.pi * npol), 0), npol - 1)
+        k, a, p = _cell(offsets[i], levels, table.shape[0], table.shape[1])
         j = table[a, p]
         best = -1.0  # cosine of the nearest direction occluded closer than level k
         for m in range(len(dirs)):

@@ -21,7 +21,14 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibration.displacement import Fused, Relative, fuse, in_world, measure_relative
+from calibration.displacement import (
+    Fused,
+    Relative,
+    fuse,
+    in_world,
+    largest_sd,
+    measure_relative,
+)
 from calibration.edge_model import Boxes, StereoRig
 from calibration.target_frame import frame_motion
 from calibration.targets import Target
@@ -95,10 +102,6 @@ def slot_model(model: mujoco.MjModel, site: str = "workpiece/slot",
     return Boxes(np.array(centres), np.array(halves))
 
 
-def _rotation_sd(covariance: np.ndarray) -> float:
-    return math.sqrt(max(float(np.linalg.eigvalsh(covariance).max()), 0.0))
-
-
 @dataclass
 class PanelBelief:
     """The panel's pose as the task believes it (world): orientation from an information
@@ -111,7 +114,7 @@ class PanelBelief:
 
     @property
     def rotation_sd_rad(self) -> float:
-        return _rotation_sd(np.linalg.inv(self.rotation_information))
+        return largest_sd(np.linalg.inv(self.rotation_information))
 
     def observe_rotation(self, R_world_panel: np.ndarray, information: np.ndarray) -> None:
         """Fuse one fit's orientation (world) with what its edges say about it (the
@@ -149,7 +152,8 @@ class RelativeMeasurer:
         """A camera moved: its slot fit no longer holds."""
         self.slot_fits.pop(name, None)
 
-    def _rotation_sd(self, cam: Camera) -> float:
+    def _turn_sd(self, cam: Camera) -> float:
+        """How uncertain a camera's believed rotation is (rad per axis)."""
         return 0.0 if cam.trusted else UNCORRECTED_ROTATION_SD
 
     def measure(self, cam: Camera, images: Images,
@@ -181,7 +185,7 @@ class RelativeMeasurer:
         assert found.object_fit is not None and found.goal_fit is not None
         self.slot_fits[name] = found.goal_fit.pose
         d, c = in_world(found.displacement, found.covariance, T_world_cam[:3, :3],
-                        self._rotation_sd(cam))
+                        self._turn_sd(cam))
         record = {"displacement": d.round(6).tolist(),
                   "sd_m": np.sqrt(np.diag(c)).round(6).tolist(),
                   "edges": {"panel": found.object_fit.inliers, "slot": found.goal_fit.inliers},
@@ -208,7 +212,7 @@ class RelativeMeasurer:
                 world[name], poses[name] = in_w, pose
                 R = opencv_pose(cam.believed)[:3, :3]
                 information = R @ found.object_fit.rotation_information() @ R.T
-                spread = self._rotation_sd(cam) ** 2  # the camera's own rotation error
+                spread = self._turn_sd(cam) ** 2  # the camera's own rotation error
                 if spread > 0:
                     information = np.linalg.pinv(np.linalg.pinv(information) + spread * np.eye(3))
                 panel.observe_rotation(pose[:3, :3], information)

@@ -40,7 +40,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from calibration.displacement import stop_reason
+from calibration.displacement import largest_sd, stop_reason
 from calibration.edge_model import Boxes, StereoRig
 from calibration.panel import window
 from mapping import (
@@ -252,8 +252,8 @@ class InsertionTask(TaskImages):
             replace: Replace | None = None, frame_robots: list[str] | None = None,
             watch: SiteWatch | None = None) -> TaskResult:
         """Carry, then steer the panel into the slot believed at ``slot``, which the
-        sightings of ``frame_robots`` placed; ``lying`` is the panel's pose where it was
-        perceived lying (4x4, world) and that orientation's uncertainty (rad per axis);
+        sightings of ``frame_robots`` placed; ``lying`` is where the panel was perceived
+        lying, with that pose's covariance;
         ``replace`` places a camera again: one that keeps losing the panel, or whose view
         of the insertion site (rated every step by ``watch``) fell well below what it
         had."""
@@ -304,11 +304,7 @@ class InsertionTask(TaskImages):
                                           "true_displacement": truth.round(6).tolist()}
                 if found.fused is not None:
                     displacement, covariance = found.fused.displacement, found.fused.covariance
-                    record["fused"] = {"displacement": displacement.round(6).tolist(),
-                                       "covariance": covariance.round(10).tolist(),
-                                       "sd_m": found.fused.sd_m.round(6).tolist(),
-                                       "cameras": found.fused.cameras,
-                                       "chi2": round(found.fused.chi2, 3)}
+                    record["fused"] = found.fused.summary()
                 log.append(record)
                 self.recorder.task_view(t, cameras, self._last_pairs, found.fits)
             else:
@@ -357,7 +353,7 @@ class InsertionTask(TaskImages):
                         + self.rng.normal(0.0, cfg.step_noise_m, 3))
             self._move_panel(self.panel[:3, 3] + executed)
             belief.pose[:3, 3] = pose[:3, 3] + step_vec
-            measured_sd = math.sqrt(float(np.linalg.eigvalsh(spread).max()))
+            measured_sd = largest_sd(spread)
             belief.position_sd_m = float(np.linalg.norm(
                 [measured_sd, cfg.step_noise_m, cfg.step_scale * float(np.linalg.norm(step_vec))]))
         truth_slot = self.data.site_xpos[self.slot_site]
