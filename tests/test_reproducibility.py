@@ -63,7 +63,7 @@ yaw_error_deg = 2.0
 check_sight = false
 ik_candidates = 6
 camera_z_m = [0.4, 1.3]
-reach_m = 1.0
+drive_m = 0.0
 
 [overrides.motion]
 joint_offset_deg = 0.0

@@ -211,6 +211,10 @@ class RatingConfig(Checked):
 
 @dataclass(frozen=True)
 class SearchConfig(Checked):
+    RETIRED: ClassVar[dict[str, str]] = {
+        "reach_m": "bases drive along planned paths: search.drive_m (how far a base may drive "
+                   "from where it starts, m; cameras go within it plus the arm's reach)"}
+
     # the placement method: the rating function, the paper's biased random baseline, or
     # next-best-view by expected information gain about the target region
     method: Literal["rating", "biased_random", "information_gain"] = "rating"
@@ -227,9 +231,14 @@ class SearchConfig(Checked):
     robot_separation_m: float = nonnegative(0.5)  # between chosen camera positions
     clearance_m: float = nonnegative(0.03)  # robot geometry to anything else, after IK
     camera_z_m: tuple[float, float] = (0.3, 1.6)  # heights the camera may be placed at
-    # Cameras go within this horizontal distance of where the robot's base stands (its
-    # arm's reach plus how far it may drive): IK does not plan around obstacles yet.
-    reach_m: float = positive(1.5)
+    # How far (m, horizontal) a robot's base may drive from where it starts; its camera
+    # goes anywhere within this plus the arm's reach that a planned path gets to
+    drive_m: float = nonnegative(2.0)
+    # The path search's budget per candidate, in validity checks (each a MuJoCo distance
+    # query of the robot's pose, about 0.1 ms: 2 s at most): a count, not seconds, so
+    # that the same seed plans the same path on any machine
+    planning_checks: int = checked(lambda v: 100 <= v <= 1_000_000, "an integer 100 to 1000000",
+                                   20000)
 
     def __post_init__(self) -> None:
         super().__post_init__()

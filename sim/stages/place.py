@@ -28,6 +28,7 @@ from placement import (
     information_gain,
     target_points,
 )
+from sim.stages.correction import ARM_REACH_M
 from sim.stages.corrector import PoseCorrector
 from sim.stages.exploration import gain_model
 from sim.stages.move import move
@@ -43,13 +44,18 @@ REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to
 
 
 def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
-    """Where ``robot``'s camera may go: the scenario's heights, within reach of its base
-    as planned, and apart from the camera positions already ``taken`` (m)."""
-    q = world.scenario.search
+    """Where ``robot``'s camera may go: the scenario's heights, within the arm's reach of
+    where its base may drive (``search.drive_m`` from where it started; where it stands,
+    if bases do not move), and apart from the camera positions already ``taken`` (m)."""
+    s = world.scenario
+    q = s.search
     keep_out = tuple((tuple(p), q.robot_separation_m) for p in taken)
-    base = world.belief.qpos[robot.qpos_adr[:2]]
+    if s.robots.move_base:
+        base, reach = world.scene.start_qpos[robot.qpos_adr[:2]], q.drive_m + ARM_REACH_M
+    else:
+        base, reach = world.belief.qpos[robot.qpos_adr[:2]], ARM_REACH_M
     return Region(q.camera_z_m[0], q.camera_z_m[1], keep_out,
-                  ((float(base[0]), float(base[1])), q.reach_m))
+                  ((float(base[0]), float(base[1])), reach))
 
 
 def ranked_field(world: World, problem: RatingProblem, robot: Robot,
@@ -95,7 +101,8 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     unreachable: list[dict[str, Any]] = []
     start = belief.qpos.copy()
     planner = ArmPlanner(world.scene, belief, q.clearance_m, q.clearance_m + s.motion.ik_margin_m,
-                         s.robots.move_base)
+                         s.robots.move_base, drive_m=q.drive_m, checks=q.planning_checks,
+                         rng=world.rng)
     rejected: list[np.ndarray] = []
     for i in ranked.ranked():
         if tried >= q.ik_candidates:
@@ -119,19 +126,22 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
             world.scene.set_robot(belief, robot, start)
         if why is not None:
             rejections[why] += 1
-            if why == "unreachable" and len(unreachable) < 5:
+            if plan.reason is not None and len(unreachable) < 5:
                 unreachable.append({
-                    "position": position.round(4).tolist(),
+                    "position": position.round(4).tolist(), "why": plan.reason,
                     "position_error_m": round(plan.ik.position_error_m, 5),
-                    "orientation_error_deg": round(plan.ik.orientation_error_deg, 4)})
+                    "orientation_error_deg": round(plan.ik.orientation_error_deg, 4),
+                    "validity_checks": plan.checks})
             continue
         commanded_pose = camera_pose(belief, robot.camera)
         world.recorder.chosen(robot.name, position, target.position, target.name)
         world.recorder.hulls(robot.name, ranked.hulls[target.name])
-        motion, correction = move(world, robot, plan.ik.path, corrector, prior_sd)
+        world.recorder.planned_path(robot.name, plan.path[:, :2],
+                                    planner.camera_path(robot, plan.path))
+        motion, correction = move(world, robot, plan.path, corrector, prior_sd)
         return Placement(robot, index, step, reason, target, position, commanded_pose,
                          camera_pose(world.data, robot.camera), ranked.ratings.terms(int(i)),
-                         plan.ik, motion, correction, candidates_tried=tried,
+                         plan.ik, motion, correction, plan=plan, candidates_tried=tried,
                          undetectable=undetectable, rejections=dict(rejections),
                          unreachable=unreachable, **counts)
     return Placement(robot, index, step, reason, candidates_tried=tried,

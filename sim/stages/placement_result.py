@@ -21,6 +21,7 @@ from sim.stages.correction import ARM_REACH_M, Correction
 from sim.stages.task_result import Camera
 from sim.world.ik import IKResult
 from sim.world.motion import MotionResult
+from sim.world.planning import Plan
 from sim.world.scene import Robot
 
 
@@ -71,12 +72,13 @@ class Placement:
     ik: IKResult | None = None
     motion: MotionResult | None = None
     correction: Correction | None = None
+    plan: Plan | None = None  # the goal and the path there
     strategy: str = "exhaustive"
     evaluated: int = 0  # candidates the search rated
     candidates_tried: int = 0  # of them, tried with IK
     undetectable: int = 0  # candidates skipped: the detector could not find the target
     rejections: dict[str, int] = field(default_factory=dict)  # by why
-    unreachable: list[dict[str, Any]] = field(default_factory=list)  # residuals, first few
+    unreachable: list[dict[str, Any]] = field(default_factory=list)  # why, first few
 
     @property
     def placed(self) -> bool:
@@ -145,5 +147,6 @@ class Placement:
                 "positioning_error": pose_error(self.commanded_pose, self.pose),
                 "target": self.target.summary(), "rating": self.rating,
                 "ik": self.ik.summary(),
+                "path": None if self.plan is None else self.plan.summary(),
                 "motion": None if self.motion is None else self.motion.summary(),
                 **correction_summary(self.correction, self.commanded_pose, self.pose)}

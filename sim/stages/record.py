@@ -212,6 +212,15 @@ class Recorder:
                 self.rec.log(f"{path}/{part}/matched",
                              rr.Points2D(fit.matched[0], radii=0.8, colors=colour))
 
+    def planned_path(self, robot: str, base: np.ndarray, camera: np.ndarray) -> None:
+        """A planned move: its base's way on the floor (k, 2; m) and its camera's (n, 3)."""
+        if self.rec is None or len(base) == 0:
+            return
+        floor = np.column_stack([base, np.full(len(base), 0.01)])
+        self.rec.log(f"world/{robot}/planned/base", rr.LineStrips3D([floor], colors=[70, 130, 230]))
+        self.rec.log(f"world/{robot}/planned/camera", rr.LineStrips3D([camera],
+                                                                      colors=[150, 90, 230]))
+
     def chosen(self, robot: str, position: np.ndarray, target: np.ndarray, label: str) -> None:
         if self.rec is not None:
             self.rec.log(f"world/{robot}/chosen",

@@ -1,5 +1,6 @@
-"""Motion in physics: a joint-space path followed through position actuators, with the
-robot's positioning errors (sec. 2.4), clearance and contacts watched along the way.
+"""Motion in physics: a joint-space path, timed jerk-limited (``sim.world.timing``),
+followed through position actuators, with the robot's positioning errors (sec. 2.4),
+clearance and contacts watched along the way.
 
 The planner's world is the nominal model and the commanded joints; the simulated world
 (``world``, a copy of the model) is where the robot really goes. Its errors:
@@ -30,10 +31,10 @@ from scipy.spatial.transform import Rotation
 
 from sim.config.scenario import MotionConfig
 from sim.world.collision import Clearance, Proximity
-from sim.world.scene import JOINT_SPEEDS, ROBOT_JOINTS, Robot
+from sim.world.scene import ROBOT_JOINTS, Robot
+from sim.world.timing import ROBOT_LIMITS, time_path
 
 ARM_MOUNT = "arm_base"  # the body the suspension tilts, about the base's floor point
-MIN_JERK_STRETCH = 15 / 8  # a minimum-jerk move's duration over its constant-speed one
 TILT_EVERY = 10  # physics steps between updates of the building-up suspension tilt
 
 
@@ -82,14 +83,6 @@ class MotionResult:
         return {"duration_s": round(self.duration_s, 4), "steps": self.steps,
                 "contact_steps": self.contact_steps,
                 **{f"min_clearance_{k}": v for k, v in self.closest.summary().items()}}
-
-
-def timed_path(path: np.ndarray, speed_scale: float) -> np.ndarray:
-    """Times (s) at the waypoints of a joint path (k, 9): every segment takes as long as
-    its slowest joint needs at ``speed_scale`` of its speed limit."""
-    speeds = np.array([JOINT_SPEEDS[j] for j in ROBOT_JOINTS]) * speed_scale
-    durations = np.abs(np.diff(path, axis=0) / speeds).max(axis=1, initial=0.0)
-    return np.concatenate([[0.0], np.cumsum(durations)])
 
 
 def dense_path(path: np.ndarray, step_rad: float = 0.01, step_m: float = 0.01) -> np.ndarray:
@@ -158,20 +151,22 @@ class Mover:
         """Drive ``robot``'s set points along ``path`` (k, 9), then hold the goal for the
         settle time, stepping the physics throughout.
 
-        The path is timed at ``speed_scale`` of the joint speed limits and run along a
-        minimum-jerk profile (at rest at both ends; 15/8 as long, the same peak speed),
-        with velocity feed-forward. The robot's error turns from the one it has (the last
-        move's) into ``error`` along the same profile: all of the old at the start, all
-        of the new at the end (a move that continues the last one, such as going back
-        along it and forth again, keeps it). ``on_sample(t, measured)`` is called every
+        The path is timed by ``time_path``: jerk-limited, rest-to-rest along every
+        straight segment, within ``speed_scale`` of the joint speed limits and within
+        the acceleration and jerk limits (``ROBOT_LIMITS``). Every physics step's set
+        point is where the trajectory is at the step's end, led by the trajectory's
+        velocity times the servo's lag (s; velocity feed-forward). The robot's error
+        turns from the one it has (the last move's) into ``error`` with the share of the
+        path covered: all of the old at the start, all of the new at the end (a move
+        that continues the last one, such as going back along it and forth again, keeps
+        it). ``on_sample(t, measured)`` is called every
         ``sample_every_s`` of simulated time with the joints as the robot's encoders and
         odometry read them: the true joints (servo lag included) less the errors, which
         they cannot see."""
         m, d, cfg = self.world, self.data, self.cfg
         act = self.actuators[robot.name]
-        knots = timed_path(path, cfg.speed_scale)
-        duration = MIN_JERK_STRETCH * knots[-1]
         dt = m.opt.timestep
+        trajectory = time_path(path, ROBOT_LIMITS, cfg.speed_scale, dt)
         check = max(1, round(cfg.check_every_s / dt))
         sample = max(1, round(sample_every_s / dt))
         own_geoms = self.proximity[robot.name].own
@@ -180,23 +175,15 @@ class Mover:
         closest = probe.measure(d)
         contacts, steps, t0 = 0, 0, d.time
         samples = [(float(d.time), d.qpos[robot.qpos_adr].copy())]
-        n = math.ceil((duration + cfg.settle_s) / dt)
-        tau = np.minimum((np.arange(n) + 1) * dt / max(duration, 1e-9), 1.0)
-        progress = tau ** 3 * (10 - 15 * tau + 6 * tau ** 2)  # minimum jerk, 0 to 1
-        speed = 30 * tau ** 2 * (1 - tau) ** 2 / max(duration, 1e-9)  # d progress / dt
+        last = len(trajectory.times) - 1
+        n = last + math.ceil(cfg.settle_s / dt)
+        at = np.minimum(np.arange(1, n + 1), last)  # each step's end on the trajectory
+        progress = trajectory.progress[at]
         old = self.made[robot.name]
         made = old.setpoints + progress[:, None] * (error.setpoints - old.setpoints)
         tilts = np.array(old.tilt) + progress[:, None] * (np.array(error.tilt) - old.tilt)
-        nominal = progress * knots[-1]
-        commanded = np.column_stack([np.interp(nominal, knots, path[:, j])
-                                     for j in range(path.shape[1])])
-        setpoints = commanded + made
-        if len(path) > 1:  # velocity feed-forward: the servo's lag, led
-            rates = np.diff(path, axis=0) / np.maximum(np.diff(knots), 1e-12)[:, None]
-            segment = np.clip(np.searchsorted(knots, nominal, side="left") - 1, 0,
-                              len(rates) - 1)
-            velocity = rates[segment] * (speed * knots[-1])[:, None]
-            setpoints += velocity * self.lead[robot.name]
+        setpoints = (trajectory.positions[at] + made
+                     + trajectory.velocities[at] * self.lead[robot.name])
         own = np.array(sorted(own_geoms))
         self.made[robot.name] = error
         for k in range(n):
