@@ -6,8 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from placement.rating import Ratings
+from placement.search import RatingField
 from sim.config.scenario import ScenarioError, load_scenario, parse_scenario
-from sim.world.collision import Proximity
+from sim.stages.place import travel_weighed
+from sim.world.collision import KeepOut, Proximity
 from sim.world.motion import dense_path
 from sim.world.planning import ArmPlanner
 from sim.world.scene import build_scene
@@ -115,3 +118,60 @@ def test_the_retired_reach_key_names_its_successor(tmp_path):
         load_scenario(path)
     text = str(caught.value)
     assert "search.reach_m" in text and "search.drive_m" in text and "\n" not in text
+
+
+def test_travel_weighing_prefers_what_the_base_drives_less_to():
+    positions = np.array([[3.0, 0.0, 1.0], [1.5, 0.0, 1.0], [0.5, 0.0, 1.0]])
+    ones = np.ones(3)
+    field = RatingField(Ratings(positions, ones, ones, ones, ones, ones,
+                                np.array([1.0, 0.9, 0.5])), np.zeros(3, int))
+    assert list(field.ranked()) == [0, 1, 2]  # by rating alone
+    # drives beyond the arm's 1 m: 2.0, 0.5, 0 m; at 1/m: 0.135, 0.546, 0.5
+    weighed = travel_weighed(field, np.zeros(2), 1.0)
+    assert list(weighed.ranked()) == [1, 2, 0]
+    assert np.array_equal(weighed.ratings.total, field.ratings.total)  # terms unchanged
+
+
+def test_the_keep_out_distance_is_the_distance_to_the_nearest_box():
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 deg about z
+    boxes = KeepOut(np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]), np.stack([np.eye(3), turn]),
+                    np.array([[1.0, 0.5, 0.5], [1.0, 0.5, 0.5]]))
+    points = np.array([[0.5, 0.2, 0.0],   # inside the first
+                       [2.0, 0.0, 0.0],   # 1 m beyond the first's end along x
+                       [5.0, 2.0, 0.0],   # the second is turned: its long side along y
+                       [0.0, 1.5, 1.5]])  # off the first's edge: (1, 1) away
+    assert boxes.distance(points) == pytest.approx([0.0, 1.0, 1.0, np.sqrt(2.0)])
+
+
+def test_a_robot_keeps_out_of_the_insertion_corridor():
+    scene = wall_scene()
+    robot = scene.robots[0]
+    free = planner(scene)
+    plan = free.plan(robot, scene.primary.position, GOAL)
+    assert plan.reason is None
+    # a keep-out box around where the free plan put the camera refuses the candidate
+    box = KeepOut(GOAL[None], np.eye(3)[None], np.full((1, 3), 0.1))
+    kept = ArmPlanner(scene, scene.make_data(), CLEARANCE_M, CLEARANCE_M + 0.02, drive_m=2.0,
+                      rng=np.random.default_rng(3), keep_out=box)
+    assert kept.plan(robot, scene.primary.position, GOAL).reason is not None
+
+
+def test_the_corridor_holds_the_panel_where_it_lies_above_its_slot_and_in_it():
+    from sim.config.scenario import TaskConfig
+    from sim.stages.corridor import carry_corridor
+
+    scene = build_scene(parse_scenario({}))
+    data = scene.make_data()
+    cfg = TaskConfig(approach_m=0.15, carry_error_m=0.01)
+    corridor = carry_corridor(scene.model, data, cfg)
+    panel = data.geom("panel/panel").xpos.copy()  # its centre, where it lies
+    slot = data.site("workpiece/slot").xpos
+    up = panel - data.body("panel/panel").xpos  # bottom edge to centre
+    inside = np.array([panel, slot + up, slot + up + [0, 0, cfg.approach_m]])
+    assert np.all(corridor.distance(inside) == 0.0)
+    # the boxes are the panel's (10 mm thick) grown by 3 cm: 35 mm from its centre
+    # across its face, nothing beyond (the carry runs along the panel's plane here)
+    across = data.geom("panel/panel").xmat.reshape(3, 3)[:, 0]
+    assert corridor.distance((slot + up + 0.03 * across)[None])[0] == 0.0
+    assert corridor.distance((slot + up + 0.05 * across)[None])[0] == pytest.approx(0.015,
+                                                                                 abs=1e-6)

@@ -197,6 +197,10 @@ class RatingConfig(Checked):
     beta: float = nonnegative(1.0)  # resolution
     gamma: float = nonnegative(1.0)  # target field visibility
     delta: float = nonnegative(1.0)  # target angular visibility
+    # Weigh the rating by exp(-travel_per_m x how far the base must drive to the
+    # candidate: its horizontal distance from the base beyond the arm's reach, m); 0 is
+    # off, as in the paper, whose rating has no cost of moving
+    travel_per_m: float = nonnegative(0.0)
     free_threshold: float = probability(0.05)  # candidate voxels: P below this
     unknown_occludes: bool = True  # never-observed voxels count as occluders for TFV
     hull_block: int = checked(lambda v: 1 <= v <= 64, "an integer 1 to 64", 4)  # voxels
@@ -233,7 +237,7 @@ class SearchConfig(Checked):
     camera_z_m: tuple[float, float] = (0.3, 1.6)  # heights the camera may be placed at
     # How far (m, horizontal) a robot's base may drive from where it starts; its camera
     # goes anywhere within this plus the arm's reach that a planned path gets to
-    drive_m: float = nonnegative(2.0)
+    drive_m: float = nonnegative(1.5)
     # The path search's budget per candidate, in validity checks (each a MuJoCo distance
     # query of the robot's pose, about 0.1 ms: 2 s at most): a count, not seconds, so
     # that the same seed plans the same path on any machine

@@ -43,6 +43,7 @@ import numpy as np
 
 from calibration.pose import PoseEstimate, rotation_deg
 from sim.config.scenario import MotionConfig
+from sim.world.scene import ARM_REACH_M
 
 # The accuracy a trusted correction holds: the pose-correction benchmark's moves are all
 # within it (bench/pose_correction.py: at most 2.4 mm and 0.17 deg off the truth). Two
@@ -59,7 +60,6 @@ RMS_TO_95 = math.sqrt(7.8147 / 3)
 # over standard deviation was 3.13 in position and 1.80 in rotation, where a covariance
 # that held gives RMS_TO_95 (1.61): its standard deviations are scaled by the ratio.
 BUNDLE_SD_SCALE = (3.13 / RMS_TO_95, 1.80 / RMS_TO_95)
-ARM_REACH_M = 1.0  # base pivot to camera, for the prior of an uncorrected pose (m)
 
 
 def prior_pose_sd(cfg: MotionConfig, reach_m: float = ARM_REACH_M) -> tuple[float, float]:

@@ -4,14 +4,17 @@ The rating function is searched over known-free voxels in the robot's region (th
 robots placed before count as occluders, at their commanded poses); with the method
 ``biased_random`` or ``information_gain`` the rated candidates are reordered. The
 candidates from which the hole detector can find the target (placement.detectable) are
-tried in turn until one is reachable by collision-avoiding IK (base and arm) along a
-path that keeps clear of everything, and sees its target with no geometry in the way;
+tried in turn until one is reachable (sim/world/planning.py: a goal configuration by IK,
+a path for base and arm by OMPL that keeps clear of everything) and sees its target
+with no geometry in the way;
 the robot then moves there in the world (sim/stages/move.py) before the next robot
 plans. Planning uses the nominal model and the belief, never the world's truth.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections import defaultdict
 from collections.abc import Sequence
 from typing import Any
@@ -28,8 +31,8 @@ from placement import (
     information_gain,
     target_points,
 )
-from sim.stages.correction import ARM_REACH_M
 from sim.stages.corrector import PoseCorrector
+from sim.stages.corridor import carry_corridor, sees_site, site_corners
 from sim.stages.exploration import gain_model
 from sim.stages.move import move
 from sim.stages.placement_result import Placement
@@ -38,9 +41,13 @@ from sim.stages.world import World
 from sim.world.collision import blocked_rays, robot_points
 from sim.world.planning import ArmPlanner
 from sim.world.render import camera_pose
-from sim.world.scene import Robot
+from sim.world.scene import ARM_REACH_M, Robot
 
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
+# Candidates with no clear place for the base near them are refused by a few dozen
+# validity checks (about 5 ms) and do not count as tried; at most this many are passed
+# over (a few seconds), so that a ring of clutter cannot keep the search going forever
+MAX_STANDLESS = 500
 
 
 def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
@@ -58,17 +65,30 @@ def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
                   ((float(base[0]), float(base[1])), reach))
 
 
+def travel_weighed(rated: RatingField, base: np.ndarray, per_m: float) -> RatingField:
+    """The field ordered by its rating times exp(-``per_m`` x the base's drive to each
+    candidate: its horizontal distance from ``base`` (m) beyond the arm's reach)."""
+    drive = np.maximum(np.linalg.norm(rated.ratings.positions[:, :2] - base, axis=1)
+                       - ARM_REACH_M, 0.0)
+    weighed = rated.ratings.total * np.exp(-per_m * drive)
+    order = np.lexsort((np.arange(len(weighed)), -weighed))
+    return dataclasses.replace(rated, order=order[weighed[order] > 0])
+
+
 def ranked_field(world: World, problem: RatingProblem, robot: Robot,
                  targets: tuple[Target, ...], taken: list[np.ndarray], method: str,
                  extra: Sequence[np.ndarray] = ()) -> RatingField:
     """The candidates for ``robot``'s camera in the order ``method`` tries them
-    (``rating``, ``biased_random`` or ``information_gain``); ``extra`` are point sets
-    of further occluders (the panel during the task), as the other robots are."""
+    (``rating``, weighed by the base's travel if ``rating.travel_per_m`` is set,
+    ``biased_random`` or ``information_gain``); ``extra`` are point sets of further
+    occluders (the panel during the task), as the other robots are."""
     s = world.scenario
     others = [pts for other in world.scene.robots if other is not robot
               for pts in robot_points(world.nominal, world.belief, other)] + list(extra)
     rated = problem.field(robot.name, targets, region(world, robot, taken), others,
                           world.belief.qpos, world.rng, world.timer)
+    if method == "rating" and s.rating.travel_per_m > 0:
+        return travel_weighed(rated, world.belief.qpos[robot.qpos_adr[:2]], s.rating.travel_per_m)
     if method == "biased_random":
         return biased_random(rated, [target_model(t) for t in targets], problem.camera,
                              world.rng, s.search.random_max_angle_deg)
@@ -96,16 +116,19 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     ranked = ranked_field(world, problem, robot, targets, taken, method, extra)
     world.recorder.candidates(robot.name, ranked.ratings.positions, ranked.ratings.total)
     counts: dict[str, Any] = {"strategy": ranked.strategy, "evaluated": ranked.evaluated}
-    tried = undetectable = 0
+    tried = undetectable = out_of_frame = 0
     rejections: dict[str, int] = defaultdict(int)
     unreachable: list[dict[str, Any]] = []
     start = belief.qpos.copy()
+    corridor = carry_corridor(world.nominal, belief, s.task) if s.task.enabled else None
+    corners = None if corridor is None else site_corners(corridor)
     planner = ArmPlanner(world.scene, belief, q.clearance_m, q.clearance_m + s.motion.ik_margin_m,
                          s.robots.move_base, drive_m=q.drive_m, checks=q.planning_checks,
-                         rng=world.rng)
+                         rng=world.rng, keep_out=corridor)
     rejected: list[np.ndarray] = []
+    standless = 0  # candidates with no place for the base to stand: cheap, not counted
     for i in ranked.ranked():
-        if tried >= q.ik_candidates:
+        if tried >= q.ik_candidates or standless >= MAX_STANDLESS:
             break
         target = targets[int(ranked.target[i])]
         position = ranked.ratings.positions[i]
@@ -115,18 +138,27 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                           baseline_m=s.camera.baseline_m)[0]:
             undetectable += 1  # too far or too oblique for the hole detector
             continue  # (in either stereo image: sightings need both)
+        if corners is not None and not sees_site(position, target.position, corners,
+                                                 math.radians(s.camera.fovy_deg),
+                                                 s.camera.near_m, s.camera.far_m):
+            out_of_frame += 1  # the insertion it is to measure would not be in focus and
+            continue  # in frame
+
         tried += 1
         rejected.append(position)
         with world.timer("ik"):
             plan = planner.plan(robot, target.position, position)
         why = plan.reason
+        if why == "no place to stand":
+            tried -= 1
+            standless += 1
         if why is None and q.check_sight and blocked_rays(
                 world.nominal, belief, robot, target_points(target_model(target))):
             why = "occluded"
             world.scene.set_robot(belief, robot, start)
         if why is not None:
             rejections[why] += 1
-            if plan.reason is not None and len(unreachable) < 5:
+            if plan.ik is not None and plan.reason is not None and len(unreachable) < 5:
                 unreachable.append({
                     "position": position.round(4).tolist(), "why": plan.reason,
                     "position_error_m": round(plan.ik.position_error_m, 5),
@@ -142,8 +174,10 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         return Placement(robot, index, step, reason, target, position, commanded_pose,
                          camera_pose(world.data, robot.camera), ranked.ratings.terms(int(i)),
                          plan.ik, motion, correction, plan=plan, candidates_tried=tried,
-                         undetectable=undetectable, rejections=dict(rejections),
+                         undetectable=undetectable, site_unseen=out_of_frame,
+                         rejections=dict(rejections),
                          unreachable=unreachable, **counts)
     return Placement(robot, index, step, reason, candidates_tried=tried,
-                     undetectable=undetectable, rejections=dict(rejections),
+                     undetectable=undetectable, site_unseen=out_of_frame,
+                         rejections=dict(rejections),
                      unreachable=unreachable, **counts)

@@ -17,12 +17,12 @@ import numpy as np
 
 from calibration.pose import rotation_deg
 from calibration.targets import Target
-from sim.stages.correction import ARM_REACH_M, Correction
+from sim.stages.correction import Correction
 from sim.stages.task_result import Camera
 from sim.world.ik import IKResult
 from sim.world.motion import MotionResult
 from sim.world.planning import Plan
-from sim.world.scene import Robot
+from sim.world.scene import ARM_REACH_M, Robot
 
 
 def pose_dict(T: np.ndarray) -> dict[str, list[float]]:
@@ -77,6 +77,8 @@ class Placement:
     evaluated: int = 0  # candidates the search rated
     candidates_tried: int = 0  # of them, tried with IK
     undetectable: int = 0  # candidates skipped: the detector could not find the target
+    # ... and those that would not hold the insertion site in focus and in frame
+    site_unseen: int = 0
     rejections: dict[str, int] = field(default_factory=dict)  # by why
     unreachable: list[dict[str, Any]] = field(default_factory=list)  # why, first few
 
@@ -92,7 +94,8 @@ class Placement:
             return "no known-free candidate in the robot's region"
         if self.candidates_tried == 0:
             return ("no candidate with a positive rating from which the detector can find "
-                    f"the target ({self.undetectable} refused as undetectable)")
+                    f"the target and the insertion site is in view ({self.undetectable} refused "
+                    f"as undetectable, {self.site_unseen} with the site out of view)")
         why = ", ".join(f"{k} {v}" for k, v in sorted(self.rejections.items()))
         return f"every candidate tried was rejected ({why})"
 
@@ -133,7 +136,8 @@ class Placement:
             "index": self.index, "step": self.step, "reason": self.reason,
             "placed": self.placed,
             "search": {"strategy": self.strategy, "candidates_evaluated": self.evaluated,
-                       "refused_undetectable": self.undetectable},
+                       "refused_undetectable": self.undetectable,
+                       "refused_site_out_of_view": self.site_unseen},
             "candidates_tried": self.candidates_tried, "rejections": dict(self.rejections),
             "unreachable": self.unreachable}
         if not self.placed:

@@ -11,6 +11,22 @@ import numpy as np
 from sim.world.scene import Robot
 
 
+@dataclass(frozen=True)
+class KeepOut:
+    """Oriented boxes (world, m) robots keep out of: centres (n, 3), rotations (n, 3, 3:
+    box to world), half extents (n, 3)."""
+
+    centres: np.ndarray
+    rotations: np.ndarray
+    halves: np.ndarray
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Each point's (k, 3) distance to the nearest box (m; 0 inside one)."""
+        local = np.einsum("bji,kbj->kbi", self.rotations, points[:, None, :] - self.centres)
+        outside = np.maximum(np.abs(local) - self.halves, 0.0)
+        return np.sqrt((outside ** 2).sum(axis=2)).min(axis=1)
+
+
 def collision_geoms(model: mujoco.MjModel, bodies: frozenset[int]) -> list[int]:
     """Ids of the collidable geoms of ``bodies``."""
     return [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies
@@ -43,6 +59,7 @@ class Proximity:
                  limit: float = 1.0) -> None:
         self.model, self.limit = model, limit
         self.own = collision_geoms(model, robot.body_ids)
+        self.own_array = np.array(self.own, int)
         other_bodies = frozenset().union(*(r.body_ids for r in robots if r is not robot))
         self.robots = collision_geoms(model, other_bodies)
         floor = model.geom("floor").id
@@ -55,6 +72,9 @@ class Proximity:
         # bounding spheres; a plane's (radius 0) bounds nothing
         self._radius = np.where(model.geom_rbound > 0, model.geom_rbound, np.inf)
         self._fromto = np.zeros(6)
+        self._all: np.ndarray | None = None  # every pair, for clear()
+        self._own_count = 0
+        self._reach = np.zeros(0)
 
     @property
     def avoid(self) -> list[int]:
@@ -74,6 +94,26 @@ class Proximity:
             best = min(best, mujoco.mj_geomDistance(self.model, data, int(g[k]), int(h[k]),
                                                     self.limit, self._fromto))
         return float(best)
+
+    def clear(self, data: mujoco.MjData, clearance_m: float) -> bool:
+        """Is the robot ``clearance_m`` from the other robots and the world, and its own
+        links apart? (What :meth:`measure` would say, at a fraction of its cost: only the
+        pairs whose bounding spheres come that close are measured, nearest first.)"""
+        if self._all is None:
+            self._all = np.concatenate([self.pairs_own, self.pairs_robots, self.pairs_world])
+            self._own_count = len(self.pairs_own)
+            self._reach = self._radius[self._all[:, 0]] + self._radius[self._all[:, 1]]
+        g, h = self._all[:, 0], self._all[:, 1]
+        d = data.geom_xpos[g] - data.geom_xpos[h]
+        need = np.full(len(g), clearance_m)
+        need[:self._own_count] = 1e-9  # own links: apart
+        bound = np.sqrt(np.einsum("ij,ij->i", d, d)) - self._reach
+        close = np.flatnonzero(bound < need)
+        for k in close[np.argsort(bound[close])]:
+            if mujoco.mj_geomDistance(self.model, data, int(g[k]), int(h[k]), float(need[k]),
+                                      self._fromto) < need[k]:
+                return False
+        return True
 
     def measure(self, data: mujoco.MjData) -> Clearance:
         return Clearance(self._min(self.pairs_robots, data), self._min(self.pairs_world, data),

@@ -57,6 +57,7 @@ class IKSettings:
     position_tolerance_m: float = 5e-4
     orientation_tolerance_deg: float = 0.05
     posture_cost: float = 1e-3
+    base_posture_cost: float = 1e-3  # the base's (x, y, yaw): higher keeps it where it is
     damping: float = 1e-4
     # give up when this many iterations gained less than a tolerance on both errors: a
     # pose out of reach stalls against the limits long before max_iterations
@@ -94,7 +95,9 @@ def solve_camera_pose(
         frame.set_target(mink.SE3.from_rotation_and_translation(
             target.rotation(), np.asarray(position, float)))
         tasks.append(frame)
-    posture = mink.PostureTask(model, cost=settings.posture_cost)
+    cost = np.full(model.nv, settings.posture_cost)
+    cost[robot.dof_adr[:len(BASE_JOINTS)]] = settings.base_posture_cost
+    posture = mink.PostureTask(model, cost=cost)
     posture.set_target(q0)
     tasks.append(posture)
 

@@ -15,6 +15,7 @@ validity checks, not seconds, so the same seed plans the same path on any machin
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -26,32 +27,43 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
-from sim.world.collision import Proximity
+from sim.world.collision import KeepOut, Proximity
 from sim.world.ik import IKResult, IKSettings, solve_camera_pose
 from sim.world.motion import dense_path
-from sim.world.scene import Robot, Scene
+from sim.world.scene import ARM_REACH_M, Robot, Scene
+
+# The goal's IK from a stand-off seed: the base stays about where the seed put it (its
+# posture costs 100 times the arm's) and the arm reaches; the seeds search for where the
+# base stands
+GOAL_IK = IKSettings(base_posture_cost=0.1)
 
 ou.setLogLevel(ou.LOG_NONE)
 
 CHECK_STEP = 0.01  # m (base) or rad (joints): motions are checked at least this finely
 # The seeds' stand-off sides: behind the candidate as seen from the target, and turned
-# about the candidate by these angles (deg): the first side that is clear is taken
-STAND_OFF_TURNS_DEG = (0.0, 50.0, -50.0, 100.0, -100.0, 180.0)
+# about the candidate by these angles (deg), nearest first; only the seeds that are
+# clear are solved from (a check costs 0.1 ms, an IK solve 30-90 ms)
+STAND_OFF_TURNS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0,
+                       -150.0, 180.0)
+# ... and as far as the home posture holds its camera from its base (about 0.6 m), or
+# this much farther (m): the arm stretched over what stands in front of the candidate (a
+# table's edge), within its reach (ARM_REACH_M): from farther the arm cannot get there
+STAND_OFF_BACK_M = (0.0, 0.35)
 ARM_SWING_RAD = math.pi / 2  # see ArmPlanner._bounds
 # RRT-Connect's longest step (joint space, m and rad): a tree grows in steps short
 # enough that a blocked one wastes few checks (its default, a fifth of the space's
 # extent, is several metres and radians here)
 STEP_RANGE = 1.0
-SELF_CLEARANCE_M = 0.0  # a robot's own non-neighbouring links must not touch
 
 
 @dataclass(frozen=True)
 class Plan:
     """A goal configuration and the joint path there, or why there is none: ``reason``
-    is None (it may be taken), "no goal configuration" (no IK solution that keeps the
-    clearance) or "no path within the budget"."""
+    is None (it may be taken), "no place to stand" (nowhere clear for the base near
+    the candidate), "no goal configuration" (no IK solution that keeps the clearance)
+    or "no path within the budget"."""
 
-    ik: IKResult  # the goal's IK solution (or the best attempt)
+    ik: IKResult | None  # the goal's IK solution (or the best attempt; None: none tried)
     reason: str | None
     path: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))  # (k, 9) joints
     checks: int = 0  # validity checks spent
@@ -60,7 +72,7 @@ class Plan:
     def summary(self) -> dict[str, Any]:
         """The path's waypoints, base and arm lengths, and what planning cost."""
         out: dict[str, Any] = {"reason": self.reason, "validity_checks": self.checks,
-                               "planning_s": round(self.seconds, 4)}
+                               "time_s": round(self.seconds, 4)}
         if len(self.path):
             steps = np.diff(self.path, axis=0)
             out |= {"waypoints": len(self.path),
@@ -76,17 +88,20 @@ class ArmPlanner:
     ``belief`` (data of the nominal model) holds the commanded configuration; a plan
     that may be taken leaves the robot at its goal there, any other leaves it as it was.
     A base may drive at most ``drive_m`` (horizontal) from where it started the episode;
-    ``checks`` is the path search's budget of validity checks; ``rng`` seeds each plan.
+    ``checks`` is the path search's budget of validity checks; ``rng`` seeds each plan;
+    the robot's collision geoms (their bounding spheres) keep the clearance from the
+    boxes ``keep_out`` too (the insertion's corridor).
     """
 
     def __init__(self, scene: Scene, belief: mujoco.MjData, clearance_m: float,
                  ik_margin_m: float, move_base: bool = True, *, drive_m: float = 1.5,
                  checks: int = 20000, rng: np.random.Generator | None = None,
+                 keep_out: KeepOut | None = None,
                  settings: IKSettings = IKSettings()) -> None:
         self.scene, self.belief = scene, belief
         self.clearance_m, self.ik_margin_m = clearance_m, ik_margin_m
         self.move_base, self.settings = move_base, settings
-        self.drive_m, self.checks = drive_m, checks
+        self.drive_m, self.checks, self.keep_out = drive_m, checks, keep_out
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._proximity: dict[str, Proximity] = {}
         self._scratch = mujoco.MjData(scene.model)
@@ -110,59 +125,118 @@ class ArmPlanner:
         d = self._scratch
         d.qpos[robot.qpos_adr] = joints
         mujoco.mj_kinematics(self.scene.model, d)
-        c = self.proximity(robot).measure(d)
-        return c.own > SELF_CLEARANCE_M and c.others >= clearance_m
+        near = self.proximity(robot)
+        if self.keep_out is not None:  # each geom's bounding sphere out of it
+            own = near.own_array
+            apart = self.keep_out.distance(d.geom_xpos[own]) - self.scene.model.geom_rbound[own]
+            if apart.min() < clearance_m:
+                return False
+        return near.clear(d, clearance_m)
 
     # ------------------------------------------------------------ goal
 
     def _seeds(self, robot: Robot, start: np.ndarray, look_at: np.ndarray,
                position: np.ndarray) -> list[np.ndarray]:
-        """Configurations to start the goal's IK from: standing off behind the
-        candidate (as far from it as the camera is from the base now), facing the
-        target, from each side in STAND_OFF_TURNS_DEG; then the present one."""
+        """Configurations to start the goal's IK from: the arm in its home posture
+        (compact, as the robot starts the episode), the base standing off behind the
+        candidate (as far as the home posture holds the camera from the base, or
+        STAND_OFF_BACK_M farther), facing the target, from each side in
+        STAND_OFF_TURNS_DEG; then the present configuration."""
         seeds = []
         if self.move_base:
-            q = start[robot.qpos_adr]
+            home = self.scene.start_qpos
+            q = home[robot.qpos_adr]
             self._scratch.qpos[:] = start
+            self._scratch.qpos[robot.qpos_adr] = q
             mujoco.mj_kinematics(self.scene.model, self._scratch)
             camera = self._scratch.site(robot.optical_site).xpos
             offset = float(np.hypot(*(camera[:2] - q[:2])))  # base to camera, horizontal
+            bearing = math.atan2(camera[1] - q[1], camera[0] - q[0]) - q[2]  # in the base
             facing = math.atan2(*(look_at[1::-1] - position[1::-1]))  # candidate to target
-            camera_bearing = math.atan2(camera[1] - q[1], camera[0] - q[0]) - q[2]
-            for turn in STAND_OFF_TURNS_DEG:
+            for turn, back in itertools.product(STAND_OFF_TURNS_DEG, STAND_OFF_BACK_M):
                 yaw = facing + math.radians(turn)
                 seed = start.copy()
-                base = position[:2] - offset * np.array([math.cos(yaw), math.sin(yaw)])
-                # the base turned so that the camera lies ahead of it as it does now
-                seed[robot.qpos_adr[:2]] = base
-                seed[robot.qpos_adr[2]] = _near_angle(yaw - camera_bearing, q[2])
+                seed[robot.qpos_adr] = q
+                seed[robot.qpos_adr[:2]] = position[:2] - (offset + back) * np.array(
+                    [math.cos(yaw), math.sin(yaw)])
+                # turned so that the camera lies ahead of the base as at home
+                seed[robot.qpos_adr[2]] = _near_angle(yaw - bearing, start[robot.qpos_adr[2]])
                 seeds.append(seed)
         seeds.append(start.copy())
         return seeds
 
     def goal(self, robot: Robot, start: np.ndarray, look_at: np.ndarray,
-             position: np.ndarray) -> tuple[IKResult, bool]:
-        """The first IK solution from the seeds that keeps the clearance (with the IK
-        margin) and the drive limit; else the best attempt, and False."""
+             position: np.ndarray) -> tuple[IKResult | None, str | None]:
+        """The first IK solution that keeps ``ik_margin_m`` (the clearance and a margin
+        for the move's positioning errors) and the drive limit, from the seeds that are
+        clear (mink's collision avoidance aims to keep its iterates that clear), and
+        None; else the
+        best attempt and why: "no goal configuration", or "no place to stand" when no
+        stand-off seed is clear and the candidate is beyond the arm's reach of where
+        the robot stands (no IK is tried then; a base that does not move always
+        tries)."""
         best: IKResult | None = None
-        for seed in self._seeds(robot, start, look_at, position):
+        avoid = self.proximity(robot).avoid
+        *stand_offs, here = self._seeds(robot, start, look_at, position)
+        seeds = [s for s in stand_offs if self._valid(robot, s[robot.qpos_adr], self.clearance_m)]
+        base = start[robot.qpos_adr[:2]]
+        if not self.move_base or np.hypot(*(position[:2] - base)) <= ARM_REACH_M:
+            seeds.append(here)  # where it stands, it is clear (or as clear as it can be)
+        if not seeds:
+            return None, "no place to stand"
+        for seed in seeds:
+            settings = self.settings if seed is here else GOAL_IK
             ik = solve_camera_pose(self.scene.model, seed, robot, look_at, position,
-                                   self.move_base, self.settings)
+                                   self.move_base, settings, avoid, self.ik_margin_m)
             if ik.converged and self._valid(robot, ik.qpos[robot.qpos_adr], self.ik_margin_m):
-                return ik, True
+                return ik, None
             if best is None or ik.position_error_m < best.position_error_m:
                 best = ik
-        assert best is not None
-        return best, False
+        return best, "no goal configuration"
 
     # ------------------------------------------------------------ path
 
     def path(self, robot: Robot, start: np.ndarray, goal: np.ndarray
              ) -> tuple[np.ndarray | None, int]:
-        """OMPL's RRT-Connect from ``start`` to ``goal`` (9 joints each), simplified;
-        None if none was found within the budget; and the validity checks spent."""
-        active = list(range(9)) if self.move_base else list(range(3, 9))
-        fixed = start.copy()
+        """A collision-free joint path (k, 9) from ``start`` to ``goal`` (9 joints
+        each), or None if none was found within the budget; and the validity checks
+        spent. Tried in turn: the straight way; with the base moving, as mobile
+        manipulators travel, the arm tucked into its home posture, the base's way
+        (x, y, yaw) searched by OMPL with the arm tucked, the arm out again; then OMPL's
+        search over base and arm together."""
+        spent = [0]
+        if self._segment_clear(robot, start, goal, spent):
+            return np.array([start, goal]), spent[0]
+        if self.move_base:
+            home = self.scene.start_qpos[robot.qpos_adr]
+            tucked_here, tucked_there = start.copy(), goal.copy()
+            tucked_here[3:], tucked_there[3:] = home[3:], home[3:]
+            if (self._valid(robot, tucked_there, self.clearance_m)
+                    and self._segment_clear(robot, start, tucked_here, spent)
+                    and self._segment_clear(robot, tucked_there, goal, spent)):
+                drive = self._search(robot, tucked_here, tucked_there, [0, 1, 2], spent)
+                if drive is not None:
+                    return np.vstack([start, drive, goal]), spent[0]
+        found = self._search(robot, start, goal, list(range(9)) if self.move_base
+                             else list(range(3, 9)), spent)
+        return found, spent[0]
+
+    def _segment_clear(self, robot: Robot, a: np.ndarray, b: np.ndarray,
+                       spent: list[int]) -> bool:
+        """Is the straight joint-space segment from ``a`` (clear) to ``b`` clear,
+        checked every CHECK_STEP? Counts its checks in ``spent``."""
+        n = max(1, math.ceil(float(np.linalg.norm(b - a)) / CHECK_STEP))
+        for k in range(1, n + 1):
+            spent[0] += 1
+            if not self._valid(robot, a + (b - a) * (k / n), self.clearance_m):
+                return False
+        return True
+
+    def _search(self, robot: Robot, start: np.ndarray, goal: np.ndarray, active: list[int],
+                spent: list[int]) -> np.ndarray | None:
+        """OMPL's RRT-Connect from ``start`` to ``goal`` (9 joints each) over the joints
+        ``active`` (the others held as at ``start``), until ``spent`` reaches the
+        budget; the path found, its waypoints reduced by OMPL's simplifier, or None."""
         lo, hi = self._bounds(robot, start, goal)
         space = ob.RealVectorStateSpace(len(active))
         bounds = ob.RealVectorBounds(len(active))
@@ -172,10 +246,9 @@ class ArmPlanner:
         space.setBounds(bounds)
         ou.RNG.setSeed(int(self.rng.integers(1, 2 ** 31 - 1)))  # before the planner's RNGs
         setup = og.SimpleSetup(space)
-        spent = [0]
 
         def joints_of(state: Any) -> np.ndarray:
-            q = fixed.copy()
+            q = start.copy()
             q[active] = [state[i] for i in range(len(active))]
             return q
 
@@ -183,27 +256,25 @@ class ArmPlanner:
             spent[0] += 1
             return self._valid(robot, joints_of(state), self.clearance_m)
 
+        def state(q: np.ndarray) -> Any:
+            x = space.allocState()
+            for i, j in enumerate(active):
+                x[i] = float(q[j])
+            return x
+
         setup.setStateValidityChecker(valid)
         info = setup.getSpaceInformation()
         info.setStateValidityCheckingResolution(CHECK_STEP / space.getMaximumExtent())
-        a, b = space.allocState(), space.allocState()
-        for i, j in enumerate(active):
-            a[i], b[i] = float(start[j]), float(goal[j])
-        setup.setStartAndGoalStates(a, b)
-        setup.setup()
-        if info.checkMotion(a, b):  # the straight way is clear: no search needed
-            return np.array([start, goal]), spent[0]
+        setup.setStartAndGoalStates(state(start), state(goal))
         planner = og.RRTConnect(info)
         planner.setRange(STEP_RANGE)
         setup.setPlanner(planner)
-        stop = ob.PlannerTerminationCondition(lambda: spent[0] >= self.checks)
-        setup.solve(stop)
+        setup.solve(ob.PlannerTerminationCondition(lambda: spent[0] >= self.checks))
         if not setup.haveExactSolutionPath():
-            return None, spent[0]
-        setup.simplifySolution()  # no time limit: OMPL's full, deterministic simplification
+            return None
         found = setup.getSolutionPath()
-        path = np.array([joints_of(found.getState(k)) for k in range(found.getStateCount())])
-        return path, spent[0]
+        setup.getPathSimplifier().reduceVertices(found)  # OMPL's shortcutting of waypoints
+        return np.array([joints_of(found.getState(k)) for k in range(found.getStateCount())])
 
     def _bounds(self, robot: Robot, start: np.ndarray, goal: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -231,9 +302,9 @@ class ArmPlanner:
         started = time.perf_counter()
         start = self.belief.qpos.copy()
         self._scratch.qpos[:] = start
-        ik, ok = self.goal(robot, start, look_at, position)
-        if not ok:
-            return Plan(ik, "no goal configuration", seconds=time.perf_counter() - started)
+        ik, why = self.goal(robot, start, look_at, position)
+        if ik is None or why is not None:
+            return Plan(ik, why, seconds=time.perf_counter() - started)
         path, checks = self.path(robot, start[robot.qpos_adr], ik.qpos[robot.qpos_adr])
         self._scratch.qpos[:] = start
         if path is None:
