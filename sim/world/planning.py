@@ -45,6 +45,10 @@ CHECK_STEP = 0.01  # m (base) or rad (joints): motions are checked at least this
 # clear are solved from (a check costs 0.1 ms, an IK solve 30-90 ms)
 STAND_OFF_TURNS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0,
                        -150.0, 180.0)
+# At most this many clear stand-off seeds are solved from (the nearest sides first): an
+# IK solve costs 5-50 ms, and a candidate the arm cannot reach from the nearest clear
+# sides is seldom reached from the farther ones
+SOLVED_SEEDS = 4
 # ... and as far as the home posture holds its camera from its base (about 0.6 m), or
 # this much farther (m): the arm stretched over what stands in front of the candidate (a
 # table's edge), within its reach (ARM_REACH_M): from farther the arm cannot get there
@@ -168,17 +172,16 @@ class ArmPlanner:
     def goal(self, robot: Robot, start: np.ndarray, look_at: np.ndarray,
              position: np.ndarray) -> tuple[IKResult | None, str | None]:
         """The first IK solution that keeps ``ik_margin_m`` (the clearance and a margin
-        for the move's positioning errors) and the drive limit, from the seeds that are
-        clear (mink's collision avoidance aims to keep its iterates that clear), and
-        None; else the
-        best attempt and why: "no goal configuration", or "no place to stand" when no
-        stand-off seed is clear and the candidate is beyond the arm's reach of where
-        the robot stands (no IK is tried then; a base that does not move always
+        for the move's positioning errors) and the drive limit, from the first
+        SOLVED_SEEDS stand-off seeds that are clear and where the robot stands, and None;
+        else the best attempt and why: "no goal configuration", or "no place to stand"
+        when no stand-off seed is clear and the candidate is beyond the arm's reach of
+        where the robot stands (no IK is tried then; a base that does not move always
         tries)."""
         best: IKResult | None = None
-        avoid = self.proximity(robot).avoid
         *stand_offs, here = self._seeds(robot, start, look_at, position)
-        seeds = [s for s in stand_offs if self._valid(robot, s[robot.qpos_adr], self.clearance_m)]
+        seeds = [s for s in stand_offs
+                 if self._valid(robot, s[robot.qpos_adr], self.clearance_m)][:SOLVED_SEEDS]
         base = start[robot.qpos_adr[:2]]
         if not self.move_base or np.hypot(*(position[:2] - base)) <= ARM_REACH_M:
             seeds.append(here)  # where it stands, it is clear (or as clear as it can be)
@@ -187,7 +190,7 @@ class ArmPlanner:
         for seed in seeds:
             settings = self.settings if seed is here else GOAL_IK
             ik = solve_camera_pose(self.scene.model, seed, robot, look_at, position,
-                                   self.move_base, settings, avoid, self.ik_margin_m)
+                                   self.move_base, settings)
             if ik.converged and self._valid(robot, ik.qpos[robot.qpos_adr], self.ik_margin_m):
                 return ik, None
             if best is None or ik.position_error_m < best.position_error_m:
