@@ -9,17 +9,20 @@ default 8; ``--top K`` candidates, default 25). Scenes are Table 1's
 obstacles), mapped by the episode's mapping stage. For the first robot, the rating
 function's candidates over the map (with the primary target, as optimal placement
 rates them) are taken best first, skipping those from which the detector cannot find
-the target and those within 8 cm of one tried (as placement skips them), the first K
-(Table 1's ``ik_candidates``, 25) that have a place for the base to stand (as placement
-counts them; at most 4 K examined). Each is planned from where mapping left the robot, by both
-planners, in the same nominal world with the same clearance; a candidate is reached when
-the planner returns a path (the planner's paths are clear by construction; IK-as-path's
-path is checked at 1 cm / 0.01 rad as before). The old planner could reach only within
-its IK's reach: both are given the same region (``search.drive_m`` plus the arm).
+the target, those with no clear place for the base within the arm's reach and those
+within 8 cm of one tried (as placement skips them), until K
+(Table 1's ``ik_candidates``, 25) with a place for the base to stand were tried, as
+placement counts them (those without are passed over, at most 500). Each is planned
+from where mapping left the robot, by both planners, in the same nominal world with
+the same clearance; a candidate is reached when the planner returns a path (the
+planner's paths are clear by construction; IK-as-path's path is checked at 1 cm /
+0.01 rad as before). Both are given the same candidates, from the same region
+(``search.drive_m`` plus the arm's reach).
 
-Prints per density the share of candidates reached and the planning time per candidate
-(median and 95th percentile) for both, and the reasons the planner refused; writes
-bench/results/planning.json.
+Prints per density the candidates reached (all, and those with a place to stand),
+the share of those nearer than 0.9 m to the target that are reached, the planning
+time per candidate (median and 95th percentile) for both, and the reasons the planner
+refused; writes bench/results/planning.json.
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ from sim.config.sweep import load_sweep
 from sim.experiments.runner import trial_specs
 from sim.experiments.trial import trial_scenario
 from sim.stages.exploration import explore
-from sim.stages.place import REJECTED_RADIUS_M, ranked_field
+from sim.stages.place import MAX_STANDLESS, REJECTED_RADIUS_M, ranked_field
 from sim.stages.rating_problem import RatingProblem, target_model
 from sim.stages.timer import Timer
 from sim.stages.world import build_world
@@ -103,8 +106,11 @@ def scene_rows(spec: Any, top: int) -> list[dict[str, Any]]:
     start = world.belief.qpos.copy()
     rows: list[dict[str, Any]] = []
     tried: list[np.ndarray] = []
-    for i in ranked.ranked():
-        if sum(r["why"] != "no place to stand" for r in rows) >= top or len(rows) >= 4 * top:
+    order = ranked.ranked()
+    room = planner.standing_room(robot, ranked.ratings.positions[order])
+    for i in order[room]:  # as placement: nowhere to stand within reach, not tried
+        if sum(r["why"] != "no place to stand" for r in rows) >= top or len(rows) >= (
+                MAX_STANDLESS + top):
             break
         position = ranked.ratings.positions[i]
         if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in tried):
@@ -155,10 +161,16 @@ def main() -> None:
         ours_s = [r["ours_s"] for r in cell]
         peer_s = [r["peer_s"] for r in cell]
         near = [r for r in cell if r["distance_m"] < 0.9]
+        stand = [r for r in cell if r["why"] != "no place to stand"]
         rows.append({
             "case": f"{density:.0%} density: candidates reached", "density": density,
-            "candidates": len(cell), "ours": round(ours, 3), "peer": round(peer, 3),
-            "ratio": None if peer == 0 else round(ours / peer, 2), "unit": "share reached",
+            "candidates": len(cell), "ours": sum(r["ours"] for r in cell),
+            "peer": sum(r["peer"] for r in cell),
+            "ratio": None if peer == 0 else round(ours / peer, 2), "unit": "candidates reached",
+            "share": {"ours": round(ours, 3), "peer": round(peer, 3)},
+            "with_a_place_to_stand": {
+                "candidates": len(stand), "ours": sum(r["ours"] for r in stand),
+                "peer": sum(r["peer"] for r in stand)},
             "nearer_than_0_9_m": {"candidates": len(near),
                                   "ours": round(float(np.mean([r["ours"] for r in near])), 3)
                                   if near else None,

@@ -127,7 +127,11 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                          rng=world.rng, keep_out=corridor)
     rejected: list[np.ndarray] = []
     standless = 0  # candidates with no place for the base to stand: cheap, not counted
-    for i in ranked.ranked():
+    order = ranked.ranked()
+    with world.timer("ik"):
+        room = planner.standing_room(robot, ranked.ratings.positions[order])
+    roomless = int((~room).sum())  # nowhere to stand within the arm's reach: skipped
+    for i in order[room]:
         if tried >= q.ik_candidates or standless >= MAX_STANDLESS:
             break
         target = targets[int(ranked.target[i])]
@@ -174,10 +178,10 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         return Placement(robot, index, step, reason, target, position, commanded_pose,
                          camera_pose(world.data, robot.camera), ranked.ratings.terms(int(i)),
                          plan.ik, motion, correction, plan=plan, candidates_tried=tried,
-                         undetectable=undetectable, site_unseen=out_of_frame,
+                         undetectable=undetectable, site_unseen=out_of_frame, roomless=roomless,
                          rejections=dict(rejections),
                          unreachable=unreachable, **counts)
     return Placement(robot, index, step, reason, candidates_tried=tried,
-                     undetectable=undetectable, site_unseen=out_of_frame,
+                     undetectable=undetectable, site_unseen=out_of_frame, roomless=roomless,
                          rejections=dict(rejections),
                      unreachable=unreachable, **counts)

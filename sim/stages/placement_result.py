@@ -79,6 +79,7 @@ class Placement:
     undetectable: int = 0  # candidates skipped: the detector could not find the target
     # ... and those that would not hold the insertion site in focus and in frame
     site_unseen: int = 0
+    roomless: int = 0  # ... and those with no clear place for the base within the arm's reach
     rejections: dict[str, int] = field(default_factory=dict)  # by why
     unreachable: list[dict[str, Any]] = field(default_factory=list)  # why, first few
 
@@ -137,7 +138,8 @@ class Placement:
             "placed": self.placed,
             "search": {"strategy": self.strategy, "candidates_evaluated": self.evaluated,
                        "refused_undetectable": self.undetectable,
-                       "refused_site_out_of_view": self.site_unseen},
+                       "refused_site_out_of_view": self.site_unseen,
+                       "refused_no_place_to_stand": self.roomless},
             "candidates_tried": self.candidates_tried, "rejections": dict(self.rejections),
             "unreachable": self.unreachable}
         if not self.placed:

@@ -26,6 +26,7 @@ import numpy as np
 from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
+from scipy.spatial import cKDTree
 
 from sim.world.collision import KeepOut, Proximity
 from sim.world.ik import IKResult, IKSettings, solve_camera_pose
@@ -45,6 +46,7 @@ CHECK_STEP = 0.01  # m (base) or rad (joints): motions are checked at least this
 # clear are solved from (a check costs 0.1 ms, an IK solve 30-90 ms)
 STAND_OFF_TURNS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0,
                        -150.0, 180.0)
+STAND_CELL_M = 0.1  # the grid of places a base may stand on, for standing_room (m)
 # At most this many clear stand-off seeds are solved from (the nearest sides first): an
 # IK solve costs 5-50 ms, and a candidate the arm cannot reach from the nearest clear
 # sides is seldom reached from the farther ones
@@ -109,6 +111,7 @@ class ArmPlanner:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._proximity: dict[str, Proximity] = {}
         self._scratch = mujoco.MjData(scene.model)
+        self._standing: dict[str, cKDTree] = {}  # clear places for each robot's base
 
     def proximity(self, robot: Robot) -> Proximity:
         if robot.name not in self._proximity:
@@ -118,6 +121,35 @@ class ArmPlanner:
     def home(self, robot: Robot) -> np.ndarray:
         """Where the robot's base started the episode (x, y; m)."""
         return self.scene.start_qpos[robot.qpos_adr[:2]]
+
+    def standing_room(self, robot: Robot, positions: np.ndarray) -> np.ndarray:
+        """For camera positions (n, 3; m): is there a clear place for the base (its arm at
+        home, facing any of four ways) within the arm's reach of each? Places are
+        checked once, every STAND_CELL_M over the base's drive (a necessary condition,
+        at a lookup's cost: the seeds decide)."""
+        if not self.move_base:
+            return np.ones(len(positions), bool)
+        if robot.name not in self._standing:
+            home = self.scene.start_qpos[robot.qpos_adr]
+            self._scratch.qpos[:] = self.belief.qpos
+            steps = np.arange(-self.drive_m, self.drive_m + 1e-9, STAND_CELL_M)
+            cells = np.stack(np.meshgrid(steps, steps), -1).reshape(-1, 2)
+            cells = cells[np.hypot(cells[:, 0], cells[:, 1]) <= self.drive_m] + home[:2]
+            clear = []
+            for cell in cells:
+                q = home.copy()
+                q[:2] = cell
+                for yaw in range(4):
+                    q[2] = home[2] + yaw * math.pi / 2
+                    if self._valid(robot, q, self.clearance_m):
+                        clear.append(cell)
+                        break
+            self._standing[robot.name] = cKDTree(np.array(clear).reshape(-1, 2))
+        tree = self._standing[robot.name]
+        if tree.n == 0:
+            return np.zeros(len(positions), bool)
+        near, _ = tree.query(positions[:, :2], distance_upper_bound=ARM_REACH_M)
+        return np.isfinite(near)
 
     # ------------------------------------------------------------ validity
 
