@@ -87,20 +87,33 @@ def test_the_same_seed_plans_the_same_path():
 
 
 def test_an_enclosed_goal_is_reported_unreachable_with_the_reason():
-    # a pen of tall walls around the work-piece: the robot can stand inside it (a goal
-    # exists) but cannot get in
+    # a pen of tall walls around the work-piece: a base could stand inside it, but no
+    # place inside is connected to where the robot stands
     half, walls = 1.3, []
     for x, y, sx, sy in ((half, 0, 0.05, half + 0.05), (-half, 0, 0.05, half + 0.05),
                          (0, half, half + 0.05, 0.05), (0, -half, half + 0.05, 0.05)):
         walls.append({"shape": "box", "position": [x, y, 1.0], "size": [sx, sy, 1.0]})
     scene = scene_with(walls)
     robot = scene.robots[0]
-    p = planner(scene, checks=3000)
+    p = planner(scene)
     before = p.belief.qpos.copy()
     plan = p.plan(robot, scene.primary.position, GOAL)
-    assert plan.reason == "no path within the budget", plan.summary()
-    assert plan.checks >= 3000 and len(plan.path) == 0
+    assert plan.reason == "no place to stand", plan.summary()
+    assert len(plan.path) == 0 and plan.ik is None  # refused before any IK
     assert np.array_equal(p.belief.qpos, before)  # the commanded configuration stays
+    # the places the base can get to are all outside the pen
+    places = p.places(robot).data
+    assert len(places) > 0 and np.all(np.abs(places).max(axis=1) > half)
+
+
+def test_a_path_not_found_within_the_budget_says_so():
+    scene = wall_scene()  # the way round the wall takes a search: 200 checks do not do
+    p = planner(scene, checks=200)
+    before = p.belief.qpos.copy()
+    plan = p.plan(scene.robots[0], scene.primary.position, GOAL)
+    assert plan.reason == "no path within the budget", plan.summary()
+    assert plan.checks >= 200 and len(plan.path) == 0
+    assert np.array_equal(p.belief.qpos, before)
 
 
 @pytest.mark.parametrize("goal", [np.array([-0.4, 0.0, 3.0])])

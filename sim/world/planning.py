@@ -15,6 +15,7 @@ validity checks, not seconds, so the same seed plans the same path on any machin
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import time
@@ -26,6 +27,7 @@ import numpy as np
 from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
+from scipy.ndimage import label
 from scipy.spatial import cKDTree
 
 from sim.world.collision import KeepOut, Proximity
@@ -122,30 +124,40 @@ class ArmPlanner:
         """Where the robot's base started the episode (x, y; m)."""
         return self.scene.start_qpos[robot.qpos_adr[:2]]
 
-    def standing_room(self, robot: Robot, positions: np.ndarray) -> np.ndarray:
-        """For camera positions (n, 3; m): is there a clear place for the base (its arm at
-        home, facing any of four ways) within the arm's reach of each? Places are
-        checked once, every STAND_CELL_M over the base's drive (a necessary condition,
-        at a lookup's cost: the seeds decide)."""
-        if not self.move_base:
-            return np.ones(len(positions), bool)
+    def places(self, robot: Robot) -> cKDTree:
+        """The places (x, y; m) the robot's base can get to: cells every STAND_CELL_M
+        over its drive where it is clear (its arm at home, facing any of four ways),
+        connected (side by side) to the one nearest where it stands now. Computed once."""
         if robot.name not in self._standing:
             home = self.scene.start_qpos[robot.qpos_adr]
+            here = self.belief.qpos[robot.qpos_adr[:2]]
             self._scratch.qpos[:] = self.belief.qpos
             steps = np.arange(-self.drive_m, self.drive_m + 1e-9, STAND_CELL_M)
-            cells = np.stack(np.meshgrid(steps, steps), -1).reshape(-1, 2)
-            cells = cells[np.hypot(cells[:, 0], cells[:, 1]) <= self.drive_m] + home[:2]
-            clear = []
-            for cell in cells:
-                q = home.copy()
-                q[:2] = cell
-                for yaw in range(4):
-                    q[2] = home[2] + yaw * math.pi / 2
-                    if self._valid(robot, q, self.clearance_m):
-                        clear.append(cell)
-                        break
-            self._standing[robot.name] = cKDTree(np.array(clear).reshape(-1, 2))
-        tree = self._standing[robot.name]
+            x, y = np.meshgrid(steps + home[0], steps + home[1], indexing="ij")
+            inside = np.hypot(x - home[0], y - home[1]) <= self.drive_m
+            clear = np.zeros(x.shape, bool)
+            q = home.copy()
+            for i, j in zip(*np.nonzero(inside), strict=True):
+                q[:2] = x[i, j], y[i, j]
+                clear[i, j] = any(self._valid(robot, q, self.clearance_m) for q[2] in
+                                  home[2] + np.arange(4) * math.pi / 2)
+            labels, _ = label(clear)
+            cells = np.column_stack([x[clear], y[clear]])
+            if len(cells):  # the part connected to the clear cell nearest the robot
+                nearest = np.argmin(np.hypot(*(cells - here).T))
+                ij = np.argwhere(clear)[nearest]
+                keep = labels == labels[ij[0], ij[1]]
+                cells = np.column_stack([x[keep], y[keep]])
+            self._standing[robot.name] = cKDTree(cells.reshape(-1, 2))
+        return self._standing[robot.name]
+
+    def standing_room(self, robot: Robot, positions: np.ndarray) -> np.ndarray:
+        """For camera positions (n, 3; m): is there a place the base can get to
+        (:meth:`places`) within the arm's reach of each? (A necessary condition, at a
+        lookup's cost: the seeds decide.)"""
+        if not self.move_base:
+            return np.ones(len(positions), bool)
+        tree = self.places(robot)
         if tree.n == 0:
             return np.zeros(len(positions), bool)
         near, _ = tree.query(positions[:, :2], distance_upper_bound=ARM_REACH_M)
@@ -212,6 +224,11 @@ class ArmPlanner:
         tries)."""
         best: IKResult | None = None
         *stand_offs, here = self._seeds(robot, start, look_at, position)
+        if stand_offs:  # only where the base can get to: near a place it reaches
+            near, _ = self.places(robot).query(
+                np.array([s[robot.qpos_adr[:2]] for s in stand_offs]),
+                distance_upper_bound=STAND_CELL_M)
+            stand_offs = [s for s, d in zip(stand_offs, near, strict=True) if np.isfinite(d)]
         seeds = [s for s in stand_offs
                  if self._valid(robot, s[robot.qpos_adr], self.clearance_m)][:SOLVED_SEEDS]
         base = start[robot.qpos_adr[:2]]
@@ -236,22 +253,31 @@ class ArmPlanner:
         """A collision-free joint path (k, 9) from ``start`` to ``goal`` (9 joints
         each), or None if none was found within the budget; and the validity checks
         spent. Tried in turn: the straight way; with the base moving, as mobile
-        manipulators travel, the arm tucked into its home posture, the base's way
-        (x, y, yaw) searched by OMPL with the arm tucked, the arm out again; then OMPL's
-        search over base and arm together."""
+        manipulators travel, in three legs each straight or else searched by OMPL: the
+        arm into its home posture where the robot stands, the base's way (x, y, yaw)
+        with the arm tucked, the arm out again at the goal; then OMPL's search over base
+        and arm together."""
         spent = [0]
         if self._segment_clear(robot, start, goal, spent):
             return np.array([start, goal]), spent[0]
         if self.move_base:
-            home = self.scene.start_qpos[robot.qpos_adr]
+            home = self._nearest_turns(robot, self.scene.start_qpos[robot.qpos_adr], start)
             tucked_here, tucked_there = start.copy(), goal.copy()
             tucked_here[3:], tucked_there[3:] = home[3:], home[3:]
-            if (self._valid(robot, tucked_there, self.clearance_m)
-                    and self._segment_clear(robot, start, tucked_here, spent)
-                    and self._segment_clear(robot, tucked_there, goal, spent)):
-                drive = self._search(robot, tucked_here, tucked_there, [0, 1, 2], spent)
-                if drive is not None:
-                    return np.vstack([start, drive, goal]), spent[0]
+            legs = []
+            if self._valid(robot, tucked_here, self.clearance_m) and self._valid(
+                    robot, tucked_there, self.clearance_m):
+                arm, base = list(range(3, 9)), [0, 1, 2]
+                for a, b, joints in ((start, tucked_here, arm),
+                                     (tucked_here, tucked_there, base),
+                                     (tucked_there, goal, arm)):
+                    leg = (np.array([a, b]) if self._segment_clear(robot, a, b, spent)
+                           else self._search(robot, a, b, joints, spent))
+                    if leg is None:
+                        break
+                    legs.append(leg)
+            if len(legs) == 3:
+                return np.vstack([legs[0], legs[1][1:], legs[2][1:]]), spent[0]
         found = self._search(robot, start, goal, list(range(9)) if self.move_base
                              else list(range(3, 9)), spent)
         return found, spent[0]
@@ -340,7 +366,11 @@ class ArmPlanner:
         ik, why = self.goal(robot, start, look_at, position)
         if ik is None or why is not None:
             return Plan(ik, why, seconds=time.perf_counter() - started)
-        path, checks = self.path(robot, start[robot.qpos_adr], ik.qpos[robot.qpos_adr])
+        goal = ik.qpos.copy()  # the same pose, each turning joint the shorter way round
+        goal[robot.qpos_adr] = self._nearest_turns(robot, goal[robot.qpos_adr],
+                                                   start[robot.qpos_adr])
+        ik = dataclasses.replace(ik, qpos=goal)
+        path, checks = self.path(robot, start[robot.qpos_adr], goal[robot.qpos_adr])
         self._scratch.qpos[:] = start
         if path is None:
             return Plan(ik, "no path within the budget", checks=checks,
@@ -348,6 +378,22 @@ class ArmPlanner:
         self.scene.set_robot(self.belief, robot, ik.qpos)
         return Plan(ik, None, path, checks, time.perf_counter() - started)
 
+    def _nearest_turns(self, robot: Robot, joints: np.ndarray, near: np.ndarray) -> np.ndarray:
+        """``joints`` (9) with each turning joint (the yaw, the arm's) moved by whole
+        turns, within its range, to lie nearest ``near`` (9): the same pose, reached
+        without turning a joint the long way round (mapping's IK may leave a joint a
+        whole turn from home)."""
+        m = self.scene.model
+        out = joints.copy()
+        for k in range(2, 9):
+            j = int(m.jnt_qposadr.tolist().index(robot.qpos_adr[k]))
+            turns = joints[k] + 2 * math.pi * np.arange(-3, 4)
+            if m.jnt_limited[j]:
+                lo, hi = m.jnt_range[j]
+                turns = turns[(turns >= lo) & (turns <= hi)]
+            if len(turns):
+                out[k] = turns[np.argmin(np.abs(turns - near[k]))]
+        return out
 
     def camera_path(self, robot: Robot, path: np.ndarray) -> np.ndarray:
         """Where the robot's camera goes along a joint path (n, 3; m), densely."""
