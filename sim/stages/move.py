@@ -44,7 +44,9 @@ def move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector 
             frames(t, measured)
             framing += time.perf_counter() - start
 
-    error = world.errors.draw(robot)
+    # a move that goes nowhere (a re-placement to where the camera is) makes no new error
+    still = len(path) < 2 or float(np.abs(np.diff(path, axis=0)).max()) < 1e-9
+    error = world.mover.made[robot.name] if still else world.errors.draw(robot)
     with timer("motion"):
         motion = world.mover.follow(robot, path, error, on_sample)
     if corrector is None:

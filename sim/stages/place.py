@@ -121,7 +121,9 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     unreachable: list[dict[str, Any]] = []
     start = belief.qpos.copy()
     corridor = carry_corridor(world.nominal, belief, s.task) if s.task.enabled else None
-    corners = None if corridor is None else site_corners(corridor)
+    # the rating function's target is the displacement (sec. 3): its candidates must hold
+    # the insertion site in focus and in frame; the other methods choose as they do
+    corners = None if corridor is None or method != "rating" else site_corners(corridor)
     planner = ArmPlanner(world.scene, belief, q.clearance_m, q.clearance_m + s.motion.ik_margin_m,
                          s.robots.move_base, drive_m=q.drive_m, checks=q.planning_checks,
                          rng=world.rng, keep_out=corridor)
