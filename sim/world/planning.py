@@ -2,15 +2,17 @@
 with every robot at its commanded joints (the others where they said they would be).
 
 A move is planned in two parts. Its goal: mink's IK puts the camera at the candidate
-position looking at the target, from a few seeds (the robot standing off behind the
-candidate, facing the target, from three sides; then where it stands now), and the first
-solution that keeps its clearance is the goal. Its way there: OMPL's RRT-Connect
-searches the robot's joint space (base x, y, yaw and the six arm joints) for a
-collision-free path, which OMPL's simplifier then shortens. The planner's world is
-MuJoCo's: a configuration is valid when the robot's collision geoms keep the clearance
-from everything but the floor (distance queries of the nominal model), its own links
-stay apart, and its base stays within how far it may drive. The budget is a number of
-validity checks, not seconds, so the same seed plans the same path on any machine.
+position looking at the target, from seeds where the base can stand (behind the
+candidate, facing the target, from the nearest clear sides; then where it stands now),
+and the first solution that keeps its clearance is the goal. Its way there: straight,
+or as mobile manipulators travel (arm tucked, base driven, arm out), or OMPL's
+RRT-Connect over the robot's joint space (base x, y, yaw and the six arm joints);
+OMPL's simplifier reduces a searched path's waypoints. The planner's world is MuJoCo's:
+a configuration is valid when the robot's collision geoms keep the clearance from
+everything but the floor (distance queries of the nominal model) and from the boxes it
+is told to keep out of, its own links stay apart, and its base stays within how far it
+may drive. The budget is a number of validity checks, not seconds, so the same seed
+plans the same path on any machine.
 """
 
 from __future__ import annotations
@@ -35,28 +37,26 @@ from sim.world.ik import IKResult, IKSettings, solve_camera_pose
 from sim.world.motion import dense_path
 from sim.world.scene import ARM_REACH_M, Robot, Scene
 
+ou.setLogLevel(ou.LOG_NONE)
+
 # The goal's IK from a stand-off seed: the base stays about where the seed put it (its
 # posture costs 100 times the arm's) and the arm reaches; the seeds search for where the
 # base stands
 GOAL_IK = IKSettings(base_posture_cost=0.1)
-
-ou.setLogLevel(ou.LOG_NONE)
-
 CHECK_STEP = 0.01  # m (base) or rad (joints): motions are checked at least this finely
 # The seeds' stand-off sides: behind the candidate as seen from the target, and turned
-# about the candidate by these angles (deg), nearest first; only the seeds that are
-# clear are solved from (a check costs 0.1 ms, an IK solve 30-90 ms)
+# about the candidate by these angles (deg), nearest first (a check costs 0.1 ms)
 STAND_OFF_TURNS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0,
                        -150.0, 180.0)
-STAND_CELL_M = 0.1  # the grid of places a base may stand on, for standing_room (m)
+# ... as far as the home posture holds its camera from its base (about 0.6 m), or this
+# much farther (m): the arm stretched over what stands in front of the candidate (a
+# table's edge), within its reach (ARM_REACH_M): from farther the arm cannot get there
+STAND_OFF_BACK_M = (0.0, 0.35)
 # At most this many clear stand-off seeds are solved from (the nearest sides first): an
 # IK solve costs 5-50 ms, and a candidate the arm cannot reach from the nearest clear
 # sides is seldom reached from the farther ones
 SOLVED_SEEDS = 4
-# ... and as far as the home posture holds its camera from its base (about 0.6 m), or
-# this much farther (m): the arm stretched over what stands in front of the candidate (a
-# table's edge), within its reach (ARM_REACH_M): from farther the arm cannot get there
-STAND_OFF_BACK_M = (0.0, 0.35)
+STAND_CELL_M = 0.1  # the grid of places a base may stand on (m), see ArmPlanner.places
 ARM_SWING_RAD = math.pi / 2  # see ArmPlanner._bounds
 # RRT-Connect's longest step (joint space, m and rad): a tree grows in steps short
 # enough that a blocked one wastes few checks (its default, a fifth of the space's
