@@ -340,8 +340,8 @@ class ArmPlanner:
     def _bounds(self, robot: Robot, start: np.ndarray, goal: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
         """The joint space searched (9 each): the base's drive square, a quarter turn
-        beyond where its yaw starts and ends, the arm's joints ARM_SWING_RAD beyond where they start
-        and end (within their ranges)."""
+        beyond where its yaw starts and ends, the arm's joints ARM_SWING_RAD beyond
+        where they start and end (within their ranges)."""
         m = self.scene.model
         q0, q1 = start, goal
         ids = [m.jnt_qposadr.tolist().index(a) for a in robot.qpos_adr]
