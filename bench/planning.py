@@ -57,6 +57,7 @@ from sim.stages.place import MAX_STANDLESS, REJECTED_RADIUS_M, ranked_field
 from sim.stages.rating_problem import RatingProblem, target_model
 from sim.stages.timer import Timer
 from sim.stages.world import build_world
+from sim.world.base_scanner import scan_into
 from sim.world.collision import Proximity
 from sim.world.ik import IKSettings, solve_camera_pose
 from sim.world.motion import dense_path
@@ -96,13 +97,16 @@ def scene_rows(spec: Any, top: int) -> list[dict[str, Any]]:
     with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:
         explore(world, renderer)
     world.hold()
+    scan_into(world.floor, world.model, world.data, world.belief, world.scene.robots,
+              world.scene.robot_geoms())
     problem = RatingProblem(world.grid, scenario)
     robot, target = world.scene.robots[0], world.scene.primary
     ranked = ranked_field(world, problem, robot, (target,), [], "rating")
     q = scenario.search
     margin = q.clearance_m + scenario.motion.ik_margin_m
     planner = ArmPlanner(world.scene, world.belief, q.clearance_m, margin, True,
-                         drive_m=q.drive_m, checks=q.planning_checks, rng=world.rng)
+                         drive_m=q.drive_m, checks=q.planning_checks, rng=world.rng,
+                         grid=world.grid, floor=world.floor)
     start = world.belief.qpos.copy()
     rows: list[dict[str, Any]] = []
     tried: list[np.ndarray] = []

@@ -11,8 +11,10 @@ from .camera import (
     world_to_camera,
 )
 from .errors import MappingError
+from .floor_map import FloorMap, ray_directions
 from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit, stored_log_odds
 from .integrate import integrate_depth
+from .obstacle_field import ObstacleField
 from .raycast import first_hits, mark_free_image, traverse
 from .stereo import StereoSettings, stereo_depth
 from .views import GAINS, GainModel, View, mean_entropy, region_mask, view_rays
@@ -22,10 +24,12 @@ __all__ = [
     "LOG_ODDS_SCALE",
     "MUJOCO_TO_OPENCV",
     "BoxModel",
+    "FloorMap",
     "GainModel",
     "LyingPose",
     "MappingError",
     "Misplacement",
+    "ObstacleField",
     "OccupancyGrid",
     "Pinhole",
     "SensorModel",
@@ -45,6 +49,7 @@ __all__ = [
     "occupancy_of",
     "opencv_pose",
     "pose_covariance",
+    "ray_directions",
     "region_mask",
     "stereo_depth",
     "stored_log_odds",

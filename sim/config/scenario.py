@@ -243,6 +243,12 @@ class SearchConfig(Checked):
     # that the same seed plans the same path on any machine
     planning_checks: int = checked(lambda v: 100 <= v <= 1_000_000, "an integer 100 to 1000000",
                                    20000)
+    # What the planner knows of the clutter (the obstacles wholly inside the map's grid):
+    # "map", what the robots mapped, space they never observed taken as blocked (the
+    # cameras' voxels for the arm, the bases' scans of the floor for the base); "map_seen",
+    # only what they saw occupied (the unobserved taken as free: optimistic); "model", the
+    # scene exactly (an oracle, as check_sight is)
+    planner_world: Literal["map", "map_seen", "model"] = "map"
 
     def __post_init__(self) -> None:
         super().__post_init__()

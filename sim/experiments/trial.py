@@ -91,7 +91,10 @@ def _outcome(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str
         "robots": [{"name": r["name"], "placed": r["placed"], "seen": r["seen"],
                     "target": r.get("target", {}).get("name"),
                     "rating": r.get("rating", {}),
-                    "position": r["pose"]["position"]} for r in robots],
+                    "position": r["pose"]["position"],
+                    # physics steps in contact over the robot's moves (none is the rule)
+                    "contact_steps": sum((p.get("motion") or {}).get("contact_steps", 0)
+                                         for p in r.get("placements", []))} for r in robots],
         "time_s": round(seconds, 3),
     }
 

@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 
 from mapping import (
+    FloorMap,
     GainModel,
     OccupancyGrid,
     Pinhole,
@@ -33,6 +34,7 @@ from mapping import (
 )
 from sim.config.scenario import Scenario
 from sim.stages.world import World
+from sim.world.base_scanner import scan_into
 from sim.world.collision import Proximity
 from sim.world.ik import IKSettings, solve_camera_pose
 from sim.world.render import Renderer, camera_pose
@@ -102,7 +104,7 @@ def explore(world: World, renderer: Renderer) -> Survey:
 
     with world.timer("mapping"):
         survey = Exploration(world.scene, world.data, world.grid, sensor, pinhole, world.rng,
-                             on_view, world.model).run()
+                             on_view, world.model, world.floor).run()
     recorder.grid(world.grid)
     return survey
 
@@ -128,10 +130,12 @@ class Exploration:
     def __init__(self, scene: Scene, data: mujoco.MjData, grid: OccupancyGrid,
                  sensor: DepthSensor, pinhole: Pinhole, rng: np.random.Generator,
                  on_view: Callable[[Robot, np.ndarray, float, np.ndarray], None] | None = None,
-                 world: mujoco.MjModel | None = None) -> None:
+                 world: mujoco.MjModel | None = None, floor: FloorMap | None = None) -> None:
         """``data`` belongs to ``world``, the simulated world (default: the nominal
-        model); the views are taken there."""
+        model); the views are taken there. The bases' scanners scan the ``floor``
+        wherever the robots go."""
         self.scene, self.data, self.grid, self.sensor = scene, data, grid, sensor
+        self.floor = floor
         self.world = scene.model if world is None else world
         self.pinhole, self.rng = pinhole, rng
         self.s: Scenario = scene.scenario
@@ -179,6 +183,9 @@ class Exploration:
     def observe(self, robot: Robot, qpos: np.ndarray, gain: float) -> None:
         """Move ``robot`` to ``qpos``, measure depth and integrate it."""
         self.scene.set_robot(self.data, robot, qpos, self.world)
+        if self.floor is not None:  # mapping's moves are made as planned: no errors yet
+            scan_into(self.floor, self.world, self.data, self.data, [robot],
+                      self.sensor.robot_geoms)
         depth = self.sensor.depth(self.data, robot)
         T = opencv_pose(camera_pose(self.data, robot.camera))
         integrate_depth(self.grid, depth, self.pinhole, T, self.s.grid.max_range_m,

@@ -94,9 +94,11 @@ class Placement:
         if self.evaluated == 0:
             return "no known-free candidate in the robot's region"
         if self.candidates_tried == 0:
+            standless = self.roomless + self.rejections.get("no place to stand", 0)
             return ("no candidate with a positive rating from which the detector can find "
-                    f"the target and the insertion site is in view ({self.undetectable} refused "
-                    f"as undetectable, {self.site_unseen} with the site out of view)")
+                    "the target, the insertion site is in view and the base has a place to "
+                    f"stand ({self.undetectable} refused as undetectable, {self.site_unseen} "
+                    f"with the site out of view, {standless} with no place to stand)")
         why = ", ".join(f"{k} {v}" for k, v in sorted(self.rejections.items()))
         return f"every candidate tried was rejected ({why})"
 

@@ -16,18 +16,28 @@ from dataclasses import dataclass, field, replace
 import mujoco
 import numpy as np
 
-from mapping import OccupancyGrid, Pinhole, SensorModel
+from mapping import FloorMap, OccupancyGrid, Pinhole, SensorModel
 from sim.config.scenario import Scenario
 from sim.stages.record import Recorder
 from sim.stages.timer import Timer
 from sim.world.motion import ErrorModel, Mover
 from sim.world.render import camera_pinhole
-from sim.world.scene import Robot, Scene, build_scene, yaw_quat
+from sim.world.scene import ARM_REACH_M, Robot, Scene, build_scene, yaw_quat
 
 # The joints and mocap bodies (positions, quaternions) of a world at one moment.
 State = tuple[np.ndarray, np.ndarray, np.ndarray]
 # Bodies where the world has them, not the plan: pos, quat relative to their parent.
 Bodies = dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+def new_floor(s: Scenario, scene: Scene) -> FloorMap:
+    """An empty floor plan at the grid's resolution over where the bases may go: each
+    robot's drive about its start, and its arm's reach beyond (room for any part of
+    a base)."""
+    starts = np.array([scene.start_qpos[r.qpos_adr[:2]] for r in scene.robots])
+    reach = s.search.drive_m + ARM_REACH_M
+    return FloorMap.from_bounds(starts.min(axis=0) - reach, starts.max(axis=0) + reach,
+                                s.grid.resolution_m)
 
 
 def new_grid(s: Scenario) -> OccupancyGrid:
@@ -39,7 +49,7 @@ def new_grid(s: Scenario) -> OccupancyGrid:
 
 @dataclass(frozen=True)
 class Snapshot:
-    """The world's state, the plan's and the map as they were (after mapping, say), for
+    """The world's state, the plan's and the maps as they were (after mapping, say), for
     :meth:`World.restored` to start another method from."""
 
     qpos: np.ndarray
@@ -48,6 +58,7 @@ class Snapshot:
     mocap_quat: np.ndarray
     time: float
     grid: OccupancyGrid
+    floor: FloorMap
 
 
 @dataclass(frozen=True)
@@ -60,6 +71,7 @@ class World:
     model: mujoco.MjModel  # the simulated world: errors go here
     data: mujoco.MjData
     grid: OccupancyGrid
+    floor: FloorMap  # the bases' scanners' floor plan
     rng: np.random.Generator
     errors: ErrorModel  # each move's positioning error, drawn from ``rng``
     mover: Mover
@@ -130,14 +142,14 @@ class World:
                                  self.bodies() if bodies is None else bodies)
 
     def snapshot(self) -> Snapshot:
-        """The world, the plan and the map as they are now."""
+        """The world, the plan and the maps as they are now."""
         d = self.data
         return Snapshot(d.qpos.copy(), d.ctrl.copy(), d.mocap_pos.copy(), d.mocap_quat.copy(),
-                        float(d.time), copy.deepcopy(self.grid))
+                        float(d.time), copy.deepcopy(self.grid), copy.deepcopy(self.floor))
 
     def restored(self, snap: Snapshot, rng: np.random.Generator) -> World:
         """This world back at ``snap``, at rest, drawing from ``rng`` from now on (the
-        robots' calibration errors are drawn afresh from it); the map is a copy of the
+        robots' calibration errors are drawn afresh from it); the maps are copies of the
         snapshot's."""
         d = self.data
         d.qpos[:], d.ctrl[:], d.time = snap.qpos, snap.ctrl, snap.time
@@ -148,7 +160,8 @@ class World:
         mujoco.mj_forward(self.model, d)
         self.belief.qpos[:] = snap.qpos
         mujoco.mj_forward(self.nominal, self.belief)
-        return replace(self, grid=copy.deepcopy(snap.grid), rng=rng,
+        return replace(self, grid=copy.deepcopy(snap.grid), floor=copy.deepcopy(snap.floor),
+                       rng=rng,
                        errors=ErrorModel(self.scenario.motion, self.scene.robots, rng),
                        _at_rest={})
 
@@ -166,7 +179,8 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
     data = scene.make_data()
     belief = scene.make_data()
     errors = ErrorModel(scenario.motion, scene.robots, rng)
-    world = World(scene, belief, model, data, new_grid(scenario), rng, errors,
+    world = World(scene, belief, model, data, new_grid(scenario), new_floor(scenario, scene),
+                  rng, errors,
                   Mover(model, data, scene.robots, scenario.motion),
                   camera_pinhole(model, scene.robots[0].camera), workpiece_error,
                   Recorder(None, "") if recorder is None else recorder, timer)

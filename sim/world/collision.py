@@ -53,10 +53,11 @@ class Clearance:
 
 class Proximity:
     """Measures one robot's clearance: its collision geoms against the other robots',
-    against the rest of the world (not the floor), and against its own."""
+    against the rest of the world (not the floor, nor the geoms in ``skip``), and
+    against its own."""
 
     def __init__(self, model: mujoco.MjModel, robot: Robot, robots: Sequence[Robot],
-                 limit: float = 1.0) -> None:
+                 limit: float = 1.0, skip: frozenset[int] = frozenset()) -> None:
         self.model, self.limit = model, limit
         self.own = collision_geoms(model, robot.body_ids)
         self.own_array = np.array(self.own, int)
@@ -64,7 +65,8 @@ class Proximity:
         self.robots = collision_geoms(model, other_bodies)
         floor = model.geom("floor").id
         self.world = [g for g in collision_geoms(
-            model, frozenset(range(model.nbody)) - robot.body_ids - other_bodies) if g != floor]
+            model, frozenset(range(model.nbody)) - robot.body_ids - other_bodies)
+            if g != floor and g not in skip]
         self.pairs_robots = _pairs(self.own, self.robots)
         self.pairs_world = _pairs(self.own, self.world)
         self.pairs_own = _pairs(self.own, self.own, lambda g, h: g < h and not _neighbours(

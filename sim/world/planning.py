@@ -7,11 +7,13 @@ candidate, facing the target, from the nearest clear sides; then where it stands
 and the first solution that keeps its clearance is the goal. Its way there: straight,
 or as mobile manipulators travel (arm tucked, base driven, arm out), or OMPL's
 RRT-Connect over the robot's joint space (base x, y, yaw and the six arm joints);
-OMPL's simplifier reduces a searched path's waypoints. The planner's world is MuJoCo's:
-a configuration is valid when the robot's collision geoms keep the clearance from
-everything but the floor (distance queries of the nominal model) and from the boxes it
-is told to keep out of, its own links stay apart, and its base stays within how far it
-may drive. The budget is a number of validity checks, not seconds, so the same seed
+OMPL's simplifier reduces a searched path's waypoints. The planner's world is MuJoCo's
+and the map's: a configuration is valid when the robot's collision geoms keep the
+clearance from everything the nominal model knows but the floor (MuJoCo's distance
+queries), from what the robots mapped where the clutter is known only by the maps
+(sim/world/mapped_obstacles.py; given the maps) and from the boxes it is told to keep
+out of, its own links stay apart, and its base stays within how far it may
+drive. The budget is a number of validity checks, not seconds, so the same seed
 plans the same path on any machine.
 """
 
@@ -32,8 +34,11 @@ from ompl import util as ou
 from scipy.ndimage import label
 from scipy.spatial import cKDTree
 
+from mapping import FloorMap, OccupancyGrid
+from sim.world.base_scanner import SCAN_HEIGHT_M
 from sim.world.collision import KeepOut, Proximity
 from sim.world.ik import IKResult, IKSettings, solve_camera_pose
+from sim.world.mapped_obstacles import MapFields, left_to_map, map_fields, robot_spheres
 from sim.world.motion import dense_path
 from sim.world.scene import ARM_REACH_M, Robot, Scene
 
@@ -98,13 +103,18 @@ class ArmPlanner:
     A base may drive at most ``drive_m`` (horizontal) from where it started the episode;
     ``checks`` is the path search's budget of validity checks; ``rng`` seeds each plan;
     the robot's collision geoms (their bounding spheres) keep the clearance from the
-    boxes ``keep_out`` too (the insertion's corridor).
+    boxes ``keep_out`` too (the insertion's corridor). Given the robots' maps (``grid``,
+    the cameras' voxels, and ``floor``, the bases' scanners' floor plan) the scene's
+    obstacles inside the grid are known only as mapped (sim/world/mapped_obstacles.py;
+    what the sensors never observed blocks the way if ``unobserved_blocks``); without
+    them, as the nominal model has them.
     """
 
     def __init__(self, scene: Scene, belief: mujoco.MjData, clearance_m: float,
                  ik_margin_m: float, move_base: bool = True, *, drive_m: float = 1.5,
                  checks: int = 20000, rng: np.random.Generator | None = None,
-                 keep_out: KeepOut | None = None,
+                 keep_out: KeepOut | None = None, grid: OccupancyGrid | None = None,
+                 floor: FloorMap | None = None, unobserved_blocks: bool = True,
                  settings: IKSettings = IKSettings()) -> None:
         self.scene, self.belief = scene, belief
         self.clearance_m, self.ik_margin_m = clearance_m, ik_margin_m
@@ -112,12 +122,26 @@ class ArmPlanner:
         self.drive_m, self.checks, self.keep_out = drive_m, checks, keep_out
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._proximity: dict[str, Proximity] = {}
+        self._spheres = {r.name: robot_spheres(scene.model, r) for r in scene.robots}
         self._scratch = mujoco.MjData(scene.model)
         self._standing: dict[str, cKDTree] = {}  # clear places for each robot's base
+        self.unmapped: frozenset[int] = frozenset()  # obstacle geoms known by the map only
+        self.maps: MapFields | None = None
+        if grid is not None and floor is not None:
+            self.unmapped = left_to_map(scene.model, belief, grid)
+            started = mujoco.MjData(scene.model)  # every robot where it started
+            started.qpos[:] = scene.start_qpos
+            mujoco.mj_kinematics(scene.model, started)
+            # a configuration held is clear by the planner's lights: the clearance, the
+            # goal's margin and the fields' bounds' slack (a voxel's diagonal) around it
+            slack = max(clearance_m, ik_margin_m) + grid.resolution * math.sqrt(3)
+            self.maps = map_fields(grid, floor, scene.model, self.unmapped, (belief, started),
+                                   self._spheres.values(), slack, SCAN_HEIGHT_M, unobserved_blocks)
 
     def proximity(self, robot: Robot) -> Proximity:
         if robot.name not in self._proximity:
-            self._proximity[robot.name] = Proximity(self.scene.model, robot, self.scene.robots)
+            self._proximity[robot.name] = Proximity(self.scene.model, robot, self.scene.robots,
+                                                    skip=self.unmapped)
         return self._proximity[robot.name]
 
     def home(self, robot: Robot) -> np.ndarray:
@@ -142,13 +166,12 @@ class ArmPlanner:
                 clear[i, j] = any(self._valid(robot, q, self.clearance_m) for q[2] in
                                   home[2] + np.arange(4) * math.pi / 2)
             labels, _ = label(clear)
-            cells = np.column_stack([x[clear], y[clear]])
-            if len(cells):  # the part connected to the clear cell nearest the robot
-                nearest = np.argmin(np.hypot(*(cells - here).T))
-                ij = np.argwhere(clear)[nearest]
+            keep = clear
+            if clear.any():  # the part connected to the clear cell nearest the robot
+                cells = np.column_stack([x[clear], y[clear]])
+                ij = np.argwhere(clear)[np.argmin(np.hypot(*(cells - here).T))]
                 keep = labels == labels[ij[0], ij[1]]
-                cells = np.column_stack([x[keep], y[keep]])
-            self._standing[robot.name] = cKDTree(cells.reshape(-1, 2))
+            self._standing[robot.name] = cKDTree(np.column_stack([x[keep], y[keep]]))
         return self._standing[robot.name]
 
     def standing_room(self, robot: Robot, positions: np.ndarray) -> np.ndarray:
@@ -179,6 +202,9 @@ class ArmPlanner:
             apart = self.keep_out.distance(d.geom_xpos[own]) - self.scene.model.geom_rbound[own]
             if apart.min() < clearance_m:
                 return False
+        if self.maps is not None and self.maps.clearance(
+                self._spheres[robot.name], d) < clearance_m:  # off what the maps hold
+            return False
         return near.clear(d, clearance_m)
 
     # ------------------------------------------------------------ goal

@@ -69,6 +69,10 @@ class Robot:
     def head_body(self) -> str:
         return f"{self.name}/head"
 
+    @property
+    def base_body(self) -> str:
+        return f"{self.name}/base"
+
     def joint(self, name: str) -> str:
         return f"{self.name}/{name}"
 
