@@ -17,7 +17,9 @@ from where mapping left the robot, by both planners, in the same nominal world w
 the same clearance; a candidate is reached when the planner returns a path (the
 planner's paths are clear by construction; IK-as-path's path is checked at 1 cm /
 0.01 rad as before). Both are given the same candidates, from the same region
-(``search.drive_m`` plus the arm's reach).
+(``search.drive_m`` plus the arm's reach). ``--world`` sets the planner's world
+(``search.planner_world``: Table 1's "model" by default; "map" plans around what the
+robots mapped, never-observed space blocked), IK-as-path's being the scene as it is.
 
 Prints per density the candidates reached (all, and those with a place to stand),
 the share of those nearer than 0.9 m to the target that are reached, the planning
@@ -89,9 +91,10 @@ def ik_as_path(scene: Scene, belief: mujoco.MjData, robot: Robot, look_at: np.nd
     return True
 
 
-def scene_rows(spec: Any, top: int) -> list[dict[str, Any]]:
+def scene_rows(spec: Any, top: int, world_kind: str) -> list[dict[str, Any]]:
     """One scene: map it, rank the first robot's candidates, plan the top ``top`` both
-    ways; one record per candidate."""
+    ways, ours in the planner's world ``world_kind`` (``search.planner_world``); one
+    record per candidate."""
     scenario, achieved = trial_scenario(spec)
     world = build_world(scenario, Timer())
     with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:
@@ -104,9 +107,12 @@ def scene_rows(spec: Any, top: int) -> list[dict[str, Any]]:
     ranked = ranked_field(world, problem, robot, (target,), [], "rating")
     q = scenario.search
     margin = q.clearance_m + scenario.motion.ik_margin_m
+    mapped = world_kind != "model"
     planner = ArmPlanner(world.scene, world.belief, q.clearance_m, margin, True,
                          drive_m=q.drive_m, checks=q.planning_checks, rng=world.rng,
-                         grid=world.grid, floor=world.floor)
+                         grid=world.grid if mapped else None,
+                         floor=world.floor if mapped else None,
+                         unobserved_blocks=world_kind == "map")
     start = world.belief.qpos.copy()
     rows: list[dict[str, Any]] = []
     tried: list[np.ndarray] = []
@@ -143,8 +149,11 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=8, help="scenes per density")
     parser.add_argument("--top", type=int, default=25,
                         help="candidates per scene (Table 1's ik_candidates)")
+    parser.add_argument("--world", choices=("model", "map_seen", "map"),
+                        help="the planner's world (default: Table 1's search.planner_world)")
     args = parser.parse_args()
     sweep = load_sweep(TABLE1)
+    world_kind = args.world or sweep.scenario.search.planner_world
     specs = trial_specs(sweep)
     started = time.perf_counter()
     records: list[dict[str, Any]] = []
@@ -152,7 +161,7 @@ def main() -> None:
         chosen = [s for s in specs if s.density == density][:args.scenes]
         for spec in chosen:
             t0 = time.perf_counter()
-            records += scene_rows(spec, args.top)
+            records += scene_rows(spec, args.top, world_kind)
             print(f"density {density:.0%} scene {spec.trial}: {time.perf_counter() - t0:.1f} s",
                   file=sys.stderr, flush=True)
     rows = []
@@ -194,8 +203,10 @@ def main() -> None:
               f"ours {t['ours_p50']}/{t['ours_p95']}, IK-as-path {t['peer_p50']}/{t['peer_p95']}; "
               f"nearer than 0.9 m: {r['nearer_than_0_9_m']}; refused: {r['refused']}")
     print(f"{len(records)} candidates in {seconds:.0f} s")
-    path = write_results("planning", rows, scenes_per_density=args.scenes, top=args.top,
-                         seconds=round(seconds, 1), candidates=records)
+    name = "planning" if args.world is None else f"planning_{world_kind}"
+    path = write_results(name, rows, scenes_per_density=args.scenes, top=args.top,
+                         planner_world=world_kind, seconds=round(seconds, 1),
+                         candidates=records)
     print(f"wrote {path}")
 
 

@@ -96,7 +96,8 @@ def test_draws_are_valid_scenarios_over_the_whole_schema() -> None:
                      scenario.mapping.gain, scenario.search.method, scenario.search.strategy])
     assert set(shapes) == {"box", "cylinder", "sphere"}
     for feature in ("roof", "shelf", "walls1", "walls3", "floating_sphere", "clutter",
-                    "tight_base", "misplaced", "targets3", "robots1", "robots4", "heavy"):
+                    "tight_base", "misplaced", "targets3", "robots1", "robots4", "heavy",
+                    "planner_map", "planner_map_seen", "planner_model"):
         assert features[feature] > 0, feature
     for key in ("render", "stereo", "cooperative", "single", "random", "entropy",
                 "unobserved", "rear_side", "rating", "biased_random", "information_gain",

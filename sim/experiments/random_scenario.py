@@ -254,6 +254,10 @@ def draw_scenario(rng: np.random.Generator, name: str, heavy: bool = False,
                      "gain": rounded(rng.uniform(0.8, 1.0), 3),
                      "max_step_m": rounded(rng.uniform(0.03, 0.1)),
                      "stereo_margin_px": int(rng.integers(16, 49))}
+    # drawn last, so that every other key draws as it did before the key existed
+    world = str(rng.choice(["map", "map", "map_seen", "model"]))
+    t["search"]["planner_world"] = world
+    features.append(f"planner_{world}")
     return Draw(t, tuple(features))
 
 

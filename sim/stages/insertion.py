@@ -85,10 +85,8 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
             return None
         name = cam.robot.name
         history = histories[name]
-        # the other cameras' places, and, when this camera lost the panel from where it
-        # is, its own: it is to look from elsewhere
         taken = [p.commanded for other, p in at.items()
-                 if (other != name or current is None) and p.commanded is not None]
+                 if other != name and p.commanded is not None]
         problem = RatingProblem(world.grid, s)
         record: dict[str, Any] = {"step": step, "robot": name, "reason": reason}
         goals, extra = targets, []
