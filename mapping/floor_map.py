@@ -45,12 +45,17 @@ class FloorMap:
                   hit: np.ndarray) -> None:
         """One scan from ``origin`` (x, y; m): rays along ``directions`` (n, 2; unit)
         passed ``ranges`` (n,; m) of free floor and ended on something where ``hit``."""
-        step = self.resolution / 2
-        free = []
-        for d, r in zip(directions, ranges, strict=True):
-            along = np.arange(0.0, max(r - step, 0.0), step)
-            free.append(origin + along[:, None] * d)
-        self._set(np.concatenate(free) if free else np.zeros((0, 2)), FREE)
+        step = self.resolution / 2  # samples along each ray, half a cell apart
+        # as far as the ray is free, and no farther than where it leaves the map
+        top = self.origin + np.array(self.shape) * self.resolution
+        with np.errstate(divide="ignore", invalid="ignore"):
+            exits = np.where(directions > 0, (top - origin) / directions,
+                             np.where(directions < 0, (self.origin - origin) / directions, np.inf))
+        free = np.minimum(ranges - step, exits.min(axis=1))
+        counts = np.ceil(np.maximum(free, 0.0) / step).astype(np.int64)
+        ray = np.repeat(np.arange(len(ranges)), counts)
+        along = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)) * step
+        self._set(origin + along[:, None] * directions[ray], FREE)
         ends = origin + (ranges[hit] + 1e-6)[:, None] * directions[hit]
         self._set(ends, OCCUPIED)
 

@@ -104,7 +104,8 @@ def explore(world: World, renderer: Renderer) -> Survey:
 
     with world.timer("mapping"):
         survey = Exploration(world.scene, world.data, world.grid, sensor, pinhole, world.rng,
-                             on_view, world.model, world.floor).run()
+                             on_view, world.model,
+                             world.floor if s.search.planner_world != "model" else None).run()
     recorder.grid(world.grid)
     return survey
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -82,6 +83,9 @@ class World:
     # where each robot that has moved believes its camera rests (4x4, MuJoCo convention)
     # and that belief's standard deviation (m, deg): its next correction starts there
     _at_rest: dict[str, tuple[np.ndarray, tuple[float, float]]] = field(default_factory=dict)
+    # the places each robot's base can get to, as planners found them (keyed by what
+    # they depend on): the methods restored from one snapshot share them
+    places: dict[tuple[Any, ...], Any] = field(default_factory=dict)
 
     @property
     def nominal(self) -> mujoco.MjModel:

@@ -20,6 +20,7 @@ plans the same path on any machine.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import math
 import time
@@ -115,6 +116,7 @@ class ArmPlanner:
                  checks: int = 20000, rng: np.random.Generator | None = None,
                  keep_out: KeepOut | None = None, grid: OccupancyGrid | None = None,
                  floor: FloorMap | None = None, unobserved_blocks: bool = True,
+                 places: dict[tuple[Any, ...], cKDTree] | None = None,
                  settings: IKSettings = IKSettings()) -> None:
         self.scene, self.belief = scene, belief
         self.clearance_m, self.ik_margin_m = clearance_m, ik_margin_m
@@ -124,7 +126,12 @@ class ArmPlanner:
         self._proximity: dict[str, Proximity] = {}
         self._spheres = {r.name: robot_spheres(scene.model, r) for r in scene.robots}
         self._scratch = mujoco.MjData(scene.model)
-        self._standing: dict[str, cKDTree] = {}  # clear places for each robot's base
+        # clear places for each robot's base, by all they depend on (shared by planners)
+        self._standing: dict[tuple[Any, ...], cKDTree] = {} if places is None else places
+        self._depends: tuple[Any, ...] = (drive_m, clearance_m, move_base)
+        if keep_out is not None:
+            self._depends += (keep_out.centres.tobytes(), keep_out.rotations.tobytes(),
+                              keep_out.halves.tobytes())
         self.unmapped: frozenset[int] = frozenset()  # obstacle geoms known by the map only
         self.maps: MapFields | None = None
         if grid is not None and floor is not None:
@@ -137,6 +144,8 @@ class ArmPlanner:
             slack = max(clearance_m, ik_margin_m) + grid.resolution * math.sqrt(3)
             self.maps = map_fields(grid, floor, scene.model, self.unmapped, (belief, started),
                                    self._spheres.values(), slack, SCAN_HEIGHT_M, unobserved_blocks)
+            self._depends += (hashlib.blake2b(grid.log_odds.tobytes() + floor.state.tobytes()
+                                              ).digest(), unobserved_blocks)
 
     def proximity(self, robot: Robot) -> Proximity:
         if robot.name not in self._proximity:
@@ -151,8 +160,11 @@ class ArmPlanner:
     def places(self, robot: Robot) -> cKDTree:
         """The places (x, y; m) the robot's base can get to: cells every STAND_CELL_M
         over its drive where it is clear (its arm at home, facing any of four ways),
-        connected (side by side) to the one nearest where it stands now. Computed once."""
-        if robot.name not in self._standing:
+        connected (side by side) to the one nearest where it stands now. Computed once
+        for what it depends on (the planner's settings and maps, the commanded
+        configuration), in the ``places`` the planner was given."""
+        key = (robot.name, self.belief.qpos.tobytes(), *self._depends)
+        if key not in self._standing:
             home = self.scene.start_qpos[robot.qpos_adr]
             here = self.belief.qpos[robot.qpos_adr[:2]]
             self._scratch.qpos[:] = self.belief.qpos
@@ -171,8 +183,8 @@ class ArmPlanner:
                 cells = np.column_stack([x[clear], y[clear]])
                 ij = np.argwhere(clear)[np.argmin(np.hypot(*(cells - here).T))]
                 keep = labels == labels[ij[0], ij[1]]
-            self._standing[robot.name] = cKDTree(np.column_stack([x[keep], y[keep]]))
-        return self._standing[robot.name]
+            self._standing[key] = cKDTree(np.column_stack([x[keep], y[keep]]))
+        return self._standing[key]
 
     def standing_room(self, robot: Robot, positions: np.ndarray) -> np.ndarray:
         """For camera positions (n, 3; m): is there a place the base can get to
