@@ -85,6 +85,9 @@ def test_a_correction_that_cannot_locate_its_final_frame_says_so():
     s = dataclasses.replace(
         base, camera=dataclasses.replace(base.camera, width=320, height=240, samples=0),
         mapping=dataclasses.replace(base.mapping, max_views=2),
+        # the planner in the scene as it is: with two mapping views the mapped world
+        # leaves the robots little room, and a short move builds up little error
+        search=dataclasses.replace(base.search, planner_world="model"),
         correction=dataclasses.replace(base.correction, search_px=0.05),
         task=dataclasses.replace(base.task, enabled=False))
     summary, _ = Episode(s).run()

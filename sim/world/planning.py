@@ -162,8 +162,9 @@ class ArmPlanner:
         over its drive where it is clear (its arm at home, facing any of four ways),
         connected (side by side) to the one nearest where it stands now. Computed once
         for what it depends on (the planner's settings and maps, the commanded
-        configuration), in the ``places`` the planner was given."""
-        key = (robot.name, self.belief.qpos.tobytes(), *self._depends)
+        configuration, where the panel is), in the ``places`` the planner was given."""
+        key = (robot.name, self.belief.qpos.tobytes(), self.belief.mocap_pos.tobytes(),
+               self.belief.mocap_quat.tobytes(), *self._depends)
         if key not in self._standing:
             home = self.scene.start_qpos[robot.qpos_adr]
             here = self.belief.qpos[robot.qpos_adr[:2]]
