@@ -107,12 +107,9 @@ def scene_rows(spec: Any, top: int, world_kind: str) -> list[dict[str, Any]]:
     ranked = ranked_field(world, problem, robot, (target,), [], "rating")
     q = scenario.search
     margin = q.clearance_m + scenario.motion.ik_margin_m
-    mapped = world_kind != "model"
     planner = ArmPlanner(world.scene, world.belief, q.clearance_m, margin, True,
                          drive_m=q.drive_m, checks=q.planning_checks, rng=world.rng,
-                         grid=world.grid if mapped else None,
-                         floor=world.floor if mapped else None,
-                         unobserved_blocks=world_kind == "map")
+                         **world.planner_maps(world_kind))
     start = world.belief.qpos.copy()
     rows: list[dict[str, Any]] = []
     tried: list[np.ndarray] = []

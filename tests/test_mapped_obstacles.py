@@ -39,6 +39,7 @@ def test_the_field_never_overestimates_the_distance_to_the_nearest_cell(dims):
     exact = np.linalg.norm(outside, axis=2).min(axis=1) - radii
     assert np.all(bound <= exact + 1e-9)
     assert np.all(bound >= exact - res * math.sqrt(dims) - 1e-9)
+    assert field.least(centres, radii) == pytest.approx(bound.min())  # the compiled least
     # outside the grid the field says nothing
     assert field.clearance(origin[None] - 1.0, np.zeros(1))[0] == np.inf
 

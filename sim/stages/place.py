@@ -127,16 +127,13 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     corners = None if corridor is None or method != "rating" else site_corners(corridor)
     # the bases scan the floor where they stand; the planner knows the clutter as mapped
     # (or, as an oracle, as it is: the scans are then not needed)
-    mapped = q.planner_world != "model"
-    if mapped:
+    if q.planner_world != "model":
         scan_into(world.floor, world.model, world.data, belief, world.scene.robots,
                   world.scene.robot_geoms())
     planner = ArmPlanner(world.scene, belief, q.clearance_m, q.clearance_m + s.motion.ik_margin_m,
                          s.robots.move_base, drive_m=q.drive_m, checks=q.planning_checks,
                          rng=world.rng, keep_out=corridor,
-                         grid=world.grid if mapped else None,
-                         floor=world.floor if mapped else None,
-                         unobserved_blocks=q.planner_world == "map", places=world.places)
+                         places=world.places, **world.planner_maps(q.planner_world))
     rejected: list[np.ndarray] = []
     standless = 0  # candidates with no place for the base to stand: cheap, not counted
     order = ranked.ranked()

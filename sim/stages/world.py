@@ -108,6 +108,13 @@ class World:
         standard deviation ``sd`` (m, deg)."""
         self._at_rest[robot.name] = (believed, sd)
 
+    def planner_maps(self, kind: str) -> dict[str, Any]:
+        """The maps an ArmPlanner is given in the planner's world ``kind``
+        (``search.planner_world``): none in "model", where it knows the scene as it is."""
+        if kind == "model":
+            return {}
+        return {"grid": self.grid, "floor": self.floor, "unobserved_blocks": kind == "map"}
+
     # ------------------------------------------------------------ state
 
     def hold(self) -> None:
