@@ -354,7 +354,7 @@ def relative(site: Site, view: View) -> Measured:
     turn = Rotation.from_rotvec(rng.normal(0.0, SLOT_FRAME_SD[1], 3)).as_matrix()
     believed[:3, :3] = turn @ believed[:3, :3]
     task.renderer = _SameImages(site.renderer, view)
-    camera = Camera(robot, view.believed, POSE_SD_M, "corrected")
+    camera = Camera(robot, view.believed, POSE_SD_M, "corrected", math.radians(POSE_SD_DEG))
     measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes,
                                 SlotBelief(believed, SLOT_FRAME_SD))
     belief = PanelBelief(view.guess.copy(), GUESS_SD_M, np.eye(3) / GUESS_SD_RAD ** 2)

@@ -12,13 +12,15 @@ stops when the fused displacement is confidently within its tightest tolerance.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2 as chi_square
 
-from .edge_fit import EdgeFit, fit_edges, point_covariance
+from .edge_fit import EdgeFit, Uncertainty, fit_edges, point_covariance
 from .edge_model import Boxes, StereoRig
 
 # The object's start, once the goal is fitted, is searched again from its first fit with
@@ -46,13 +48,14 @@ class Relative:
 def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
                      object_boxes: Boxes, object_start: np.ndarray,
                      object_sd: tuple[float, float], goal_boxes: Boxes,
-                     goal_start: np.ndarray, goal_sd: tuple[float, float],
+                     goal_start: np.ndarray, goal_sd: Uncertainty,
                      object_masks: tuple[np.ndarray, np.ndarray] | None = None) -> Relative:
     """Fit the object and the goal in one stereo pair (RGB) and return the displacement
     of the object's frame origin from the goal's (both models' frames put their point of
     interest at the origin). Starts are poses to the left camera (OpenCV), with their
-    uncertainty (m, rad per axis); ``object_masks`` (the object's pixels in the left
-    and right images, by its colour) align a far start. Each model hides the other: the object is
+    uncertainty (m, rad per axis; the goal's may be a covariance, ``Uncertainty``);
+    ``object_masks`` (the object's pixels in the left and right images, by its colour)
+    align a far start. Each model hides the other: the object is
     fitted with the goal at its start, the goal with the object as fitted, the object
     again with the goal as fitted."""
     first = fit_edges(images, object_boxes, rig, object_start, object_sd,
@@ -76,6 +79,11 @@ def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
     return Relative(displacement, covariance, obj, goal)
 
 
+# Cameras disagree beyond chance, or one disagrees with the prediction, when their
+# chi-square exceeds its 99.9th percentile: once in a thousand measurements by chance
+CHANCE = 0.999
+
+
 @dataclass(frozen=True)
 class Fused:
     """Displacements of several cameras fused by inverse covariance (world frame, m)."""
@@ -84,16 +92,25 @@ class Fused:
     covariance: np.ndarray
     cameras: list[str] = field(default_factory=list)
     chi2: float = 0.0  # of the cameras' disagreement, 3 (n - 1) degrees of freedom
+    dropped: dict[str, str] = field(default_factory=dict)  # camera -> why it was left out
+
+    @property
+    def agreed(self) -> bool:
+        """Whether the cameras fused agree within chance (chi-square at most its
+        CHANCE percentile for 3 (n - 1) degrees of freedom; one camera always does)."""
+        dof = 3 * (len(self.cameras) - 1)
+        return dof == 0 or self.chi2 <= chi_square.ppf(CHANCE, dof)
 
     @property
     def sd_m(self) -> np.ndarray:
         return np.sqrt(np.diag(self.covariance))
 
     def summary(self) -> dict[str, Any]:
-        return {"displacement": self.displacement.round(6).tolist(),
-                "covariance": self.covariance.round(10).tolist(),
-                "sd_m": self.sd_m.round(6).tolist(), "cameras": self.cameras,
-                "chi2": round(self.chi2, 3)}
+        out = {"displacement": self.displacement.round(6).tolist(),
+               "covariance": self.covariance.round(10).tolist(),
+               "sd_m": self.sd_m.round(6).tolist(), "cameras": self.cameras,
+               "chi2": round(self.chi2, 3)}
+        return out | ({"dropped": self.dropped} if self.dropped else {})
 
 
 def fuse(measured: dict[str, tuple[np.ndarray, np.ndarray]]) -> Fused | None:
@@ -115,6 +132,31 @@ def fuse(measured: dict[str, tuple[np.ndarray, np.ndarray]]) -> Fused | None:
     return Fused(mean, covariance, sorted(measured), chi2)
 
 
+def fuse_robust(measured: dict[str, tuple[np.ndarray, np.ndarray]],
+                prediction: tuple[np.ndarray, np.ndarray] | None) -> Fused | None:
+    """``fuse``, with the prediction (the last fused displacement plus the commanded
+    step, and its covariance) as the arbiter where the cameras disagree beyond chance:
+    a camera whose measurement the prediction, too, puts beyond chance is left out,
+    unless that would leave out every camera (then the prediction is what is wrong)."""
+    fused = fuse(measured)
+    if fused is None or prediction is None or fused.agreed:
+        return fused
+    expected, spread = prediction
+    dropped = {}
+    for name, (d, c) in measured.items():
+        off = d - expected
+        distance = float(off @ np.linalg.solve(c + spread, off))
+        if distance > chi_square.ppf(CHANCE, 3):
+            dropped[name] = (f"disagrees with the other cameras (chi-square {fused.chi2:.1f}) "
+                             f"and with the prediction by {math.sqrt(distance):.1f} sd")
+    kept = {n: m for n, m in measured.items() if n not in dropped}
+    if not dropped or not kept:
+        return fused
+    rest = fuse(kept)
+    assert rest is not None
+    return dataclasses.replace(rest, dropped=dropped)
+
+
 def in_world(displacement: np.ndarray, covariance: np.ndarray, R_world_cam: np.ndarray,
              rotation_sd_rad: float) -> tuple[np.ndarray, np.ndarray]:
     """A camera-frame displacement and its covariance turned into the world by the
@@ -133,20 +175,23 @@ def largest_sd(covariance: np.ndarray) -> float:
 
 
 def stop_reason(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: float,
-                share: float, sigmas: float) -> str | None:
+                share: float, sigmas: float, agreed: bool = True) -> str | None:
     """Why the guided motion should stop here, if it should: the displacement is within
     ``share`` of ``tolerance_m`` and its bound at ``sigmas`` standard deviations (the
     covariance's largest axis) within the tolerance itself (the true displacement is
     then within it with that confidence); or, where the measurement is too uncertain
     ever to confirm that (``sigmas`` sd beyond the tolerance even at no displacement),
     within ``share`` of it: no further step can be seen to do better. In between it goes
-    on: a step may bring the displacement near enough that its bound holds."""
+    on: a step may bring the displacement near enough that its bound holds. A fusion of
+    cameras that disagree beyond chance (not ``agreed``) is uncertain by their
+    disagreement, which the next measurement may not share: it says nothing of what the
+    measurement can confirm, and the motion goes on."""
     length = float(np.linalg.norm(displacement))
     if length > share * tolerance_m:
         return None
     worst = largest_sd(covariance)
     if length + sigmas * worst <= tolerance_m:
         return "confident within the tightest tolerance"
-    if sigmas * worst > tolerance_m:
+    if sigmas * worst > tolerance_m and agreed:
         return "within stop_share of the tightest tolerance, which the measurement cannot confirm"
     return None

@@ -12,13 +12,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 from test_task import looking_at_the_slot, new_task, slot_belief_at
 
-from calibration.displacement import fuse, in_world, stop_reason
+from calibration.displacement import fuse, fuse_robust, in_world, stop_reason
 from calibration.edge_fit import fit_edges, point_covariance
 from calibration.edge_model import Boxes
 from mapping import opencv_pose
 from sim.config.scenario import load_scenario
 from sim.config.schema import ScenarioError
-from sim.stages.relative import PanelBelief, RelativeMeasurer
+from sim.stages.relative import PanelBelief, RelativeMeasurer, level_covariance, levelled
 from sim.stages.task_result import Camera
 from sim.world.render import Renderer, camera_pinhole, camera_pose
 
@@ -29,13 +29,17 @@ ABOVE = np.array([0.004, -0.006, 0.06])  # the panel over its slot, as near the 
 def site():
     """The default scene, one camera 0.85 m from the slot, the panel hanging ABOVE it;
     the stereo pair through the lens; the true poses (camera frame) of panel and slot."""
+    yield from _site(ABOVE)
+
+
+def _site(above: np.ndarray):
     base = load_scenario()
     s = dataclasses.replace(base, task=dataclasses.replace(base.task, enabled=True))
     scene, robot, data, slot = looking_at_the_slot(s)
     pinhole = camera_pinhole(scene.model, robot.camera)
     with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
         task = new_task(s, scene, data, renderer, pinhole)
-        task._move_panel(slot + ABOVE)
+        task._move_panel(slot + above)
         belief = slot_belief_at(data)
         camera = Camera(robot, camera_pose(data, robot.camera))
         measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes, belief)
@@ -88,20 +92,23 @@ def test_the_edge_fit_finds_a_blurred_panel_to_a_fraction_of_a_pixel(site):
 
 
 def test_a_wrong_camera_pose_turns_the_displacement_but_does_not_shift_it(site):
-    """The camera believed 1 cm and 1 deg off: the absolute measurement (panel through the
-    pose, slot where it was believed) moves by about that centimetre, the relative one by
-    no more than the 1 deg turn of the 6 cm displacement and the fit's own error."""
+    """The camera believed 1 cm and 1 deg off, and told so (its rotation uncertain by
+    1 deg, so the level work-piece does not hold the slot's tilt to the wrong vertical):
+    the absolute measurement (panel through the pose, slot where it was believed) moves by
+    about that centimetre, the relative one by no more than the 1 deg turn of the 6 cm
+    displacement and the fit's own error."""
     task, pair, camera = site["task"], site["pair"], site["camera"]
     wrong = camera.believed.copy()
     wrong[:3, 3] += [0.006, -0.005, 0.006]
     wrong[:3, :3] = Rotation.from_rotvec(np.radians([0.6, -0.5, 0.6])).as_matrix() @ wrong[:3, :3]
     truth = site["truth"]
     results = {}
-    for name, believed in (("right", camera.believed), ("wrong", wrong)):
+    for name, believed, sd in (("right", camera.believed, 0.0),
+                               ("wrong", wrong, math.radians(1.0))):
         # what was sighted through the believed pose (the holes, the panel's last fit) is
         # where that pose puts it: the same place in the camera's frame
         carried = opencv_pose(believed) @ np.linalg.inv(opencv_pose(camera.believed))
-        cam = dataclasses.replace(camera, believed=believed)
+        cam = dataclasses.replace(camera, believed=believed, rotation_sd_rad=sd)
         slot = dataclasses.replace(site["belief"], pose=carried @ site["belief"].pose)
         measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes, slot)
         start = carried @ task.panel
@@ -123,6 +130,46 @@ def test_a_wrong_camera_pose_turns_the_displacement_but_does_not_shift_it(site):
     assert moved_absolute > 0.006 and moved_relative < turn_bound + 0.0005
 
 
+def test_the_slot_is_fitted_level_and_found_along_its_rails_by_their_ends(site):
+    """A start 3 mm off along the rails (only their ends tell that) and turned 1.5 deg
+    about them (their tops, in one plane, hardly tell that): the fit comes back along the
+    rails, and holds the slot as level as the camera's rotation is known."""
+    task, pair, camera = site["task"], site["pair"], site["camera"]
+    true_world = site["belief"].pose
+    start = true_world.copy()
+    start[:3, :3] = Rotation.from_rotvec(np.radians(1.5) * true_world[:3, 1]).as_matrix() \
+        @ true_world[:3, :3]
+    start[:3, 3] += true_world[:3, :3] @ [0.0, 0.003, 0.0]
+    belief = dataclasses.replace(site["belief"], pose=start, sd=(0.003, math.radians(1.0)))
+    measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes, belief)
+    panel = PanelBelief(opencv_pose(camera.believed) @ site["panel"], 0.002,
+                        np.eye(3) / math.radians(0.5) ** 2)
+    found = measurer.step([camera], {camera.robot.name: ((pair.left, pair.right),
+                                                         (pair.mask, pair.right_mask))}, panel)
+    fit = found.fits[camera.robot.name].goal_fit
+    assert fit is not None and fit.ok, found.why
+    off = site["slot"][:3, :3].T @ (fit.pose[:3, 3] - site["slot"][:3, 3])  # slot frame, m
+    assert abs(off[1]) < 0.0005, off  # along the rails
+    tilt = Rotation.from_matrix(site["slot"][:3, :3].T @ fit.pose[:3, :3]).as_rotvec()
+    assert np.degrees(np.abs(tilt[:2])).max() < 0.02, np.degrees(tilt)
+
+
+def test_levelling_turns_about_the_horizontal_only_by_hand():
+    """A pose tilted 2 deg about x and yawed 30 deg comes back with its z axis up, its
+    yaw and its pivot point kept; the level covariance holds the tilt and frees the yaw."""
+    yaw = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    tilted = Rotation.from_euler("x", 2, degrees=True).as_matrix() @ yaw
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = tilted, [0.1, -0.2, 0.9]
+    about = np.array([0.0, 0.0, 0.015])
+    up = np.array([0.0, 0.0, 1.0])
+    out = levelled(pose, up, about)
+    assert np.allclose(out[:3, :3], yaw, atol=1e-12)
+    assert np.allclose(out[:3, :3] @ about + out[:3, 3], tilted @ about + pose[:3, 3])
+    c = level_covariance(0.002, 0.01, 0.001, up)
+    assert np.allclose(np.diag(c), [4e-6] * 3 + [1e-6, 1e-6, 1e-4])
+
+
 def test_cameras_fuse_by_inverse_covariance_by_hand():
     a = (np.array([0.001, 0.0, 0.0]), np.diag([1e-8, 4e-8, 1e-8]))
     b = (np.array([0.003, 0.002, 0.0]), np.diag([3e-8, 4e-8, 1e-8]))
@@ -140,6 +187,28 @@ def test_cameras_fuse_by_inverse_covariance_by_hand():
     assert fuse({}) is None
 
 
+def test_the_prediction_leaves_out_the_camera_that_disagrees_with_it_by_hand():
+    """Two cameras 150 chi-square apart (the case above, beyond its 16.3 at 1 in 1000):
+    a prediction 0.1 mm from r1 with 0.2 mm sd puts r2 (1.9 and 2 mm off in x and y:
+    sqrt(1.9^2 / 0.07 + 2^2 / 0.08) = 10.1 sd, mm^2 variances) beyond chance and r1
+    (0.1 / sqrt(0.04 + 0.01) = 0.45 sd) within it: r2 is
+    left out, saying why. A prediction 1 cm wide arbitrates nothing; one beyond both
+    cameras would leave out every camera, so both are kept."""
+    a = (np.array([0.001, 0.0, 0.0]), np.diag([1e-8, 4e-8, 1e-8]))
+    b = (np.array([0.003, 0.002, 0.0]), np.diag([3e-8, 4e-8, 1e-8]))
+    near_a = (np.array([0.0011, 0.0, 0.0]), np.eye(3) * 0.0002 ** 2)
+    fused = fuse_robust({"r1": a, "r2": b}, near_a)
+    assert fused is not None and fused.cameras == ["r1"] and list(fused.dropped) == ["r2"]
+    assert np.allclose(fused.displacement, a[0]) and "10.1 sd" in fused.dropped["r2"]
+    for prediction in ((a[0], np.eye(3) * 0.01 ** 2),
+                       (np.array([0.0, 0.03, 0.0]), np.eye(3) * 0.0002 ** 2), None):
+        both = fuse_robust({"r1": a, "r2": b}, prediction)
+        assert both is not None and both.cameras == ["r1", "r2"] and not both.dropped
+    agreeing = fuse_robust({"r1": a, "r2": (a[0] + [1e-4, 0.0, 0.0], a[1])},
+                           (np.array([0.01, 0.0, 0.0]), np.eye(3) * 1e-8))
+    assert agreeing is not None and not agreeing.dropped  # they agree: nothing to arbitrate
+
+
 def test_a_turned_camera_spreads_the_displacement_across_itself():
     d, c = in_world(np.array([0.0, 0.0, 0.1]), np.zeros((3, 3)), np.eye(3), 0.01)
     assert np.allclose(d, [0.0, 0.0, 0.1])
@@ -150,8 +219,9 @@ def test_the_task_stops_when_confidently_within_the_tightest_tolerance():
     """Tolerance 2 mm, share 0.5, two standard deviations: 0.9 mm measured with 0.4 mm sd
     is confident (0.9 + 0.8 <= 2); with 0.7 mm sd it is not (0.9 + 1.4 > 2), but a
     smaller displacement could be confirmed (1.4 <= 2): go on; with 1.1 mm sd none could
-    (2.2 > 2): stop, saying so; 1.1 mm is not within half the tolerance, however certain
-    or uncertain."""
+    (2.2 > 2): stop, saying so, unless the 1.1 mm is cameras disagreeing beyond chance
+    (measure again); 1.1 mm is not within half the tolerance, however certain or
+    uncertain."""
     def sd(*axes: float) -> np.ndarray:
         return np.diag(np.square(axes))
 
@@ -160,6 +230,10 @@ def test_the_task_stops_when_confidently_within_the_tightest_tolerance():
         "confident within the tightest tolerance")
     assert stop_reason(d, sd(0.0007, 0, 0), 0.002, 0.5, 2.0) is None
     assert "cannot confirm" in str(stop_reason(d, sd(0.0011, 0, 0), 0.002, 0.5, 2.0))
+    # ... unless that uncertainty is cameras disagreeing beyond chance: measure again
+    assert stop_reason(d, sd(0.0011, 0, 0), 0.002, 0.5, 2.0, agreed=False) is None
+    assert stop_reason(d, sd(0.0004, 0, 0), 0.002, 0.5, 2.0, agreed=False) == (
+        "confident within the tightest tolerance")
     for spread in (np.zeros((3, 3)), sd(0.001, 0.001, 0.001)):
         assert stop_reason(np.array([0.0011, 0.0, 0.0]), spread, 0.002, 0.5, 2.0) is None
     # the largest axis counts, whichever it is

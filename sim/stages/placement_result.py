@@ -129,7 +129,7 @@ class Placement:
         position_sd, rotation_sd = self.believed_sd(prior)
         return Camera(self.robot, self.believed_pose(),
                       math.hypot(position_sd, ARM_REACH_M * math.radians(rotation_sd)),
-                      self.pose_status)
+                      self.pose_status, math.radians(rotation_sd))
 
     # ------------------------------------------------------------ the record
 

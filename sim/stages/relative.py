@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 from calibration.displacement import (
     Fused,
     Relative,
-    fuse,
+    fuse_robust,
     in_world,
     largest_sd,
     measure_relative,
@@ -41,6 +41,14 @@ SLOT_FRAME_SD = (0.002, math.radians(0.5))
 # The slot's fit, carried to the same camera's next step, starts this uncertain (m, rad):
 # the work-piece does not move, a fit is this repeatable (a few tenths of a pixel)
 SLOT_REFIT_SD = (0.001, math.radians(0.2))
+# The work-piece stands level on the floor (a scenario turns it about the vertical only),
+# so the slot's tilt is known: in a camera's frame as well as that camera's rotation is.
+# Only its yaw is as uncertain as the start says. The rails' edges hardly show their tilt
+# about their length (their tops lie in one plane); left free, small biases of those
+# edges turned the fit by 1-1.5 deg and moved the slot's point, at the rails' feet 30 mm
+# below their tops, 0.5-0.7 mm across (bench/measurement.py, 0.8 m, straight down).
+# A tilt known exactly is held to this (rad): 3 um at the rails' height, a numerical floor
+LEVEL_SD_RAD = 1e-4
 # A camera's pose uncertainty (m at a metre, status "uncertain") turns its displacement;
 # an uncorrected camera's rotation is uncertain by this much (rad): the positioning
 # error's scale in the default scenario (0.5 deg)
@@ -49,6 +57,34 @@ UNCORRECTED_ROTATION_SD = math.radians(0.5)
 
 Images = tuple[np.ndarray, np.ndarray] | str  # a camera's stereo pair, or why it has none
 Masks = tuple[np.ndarray, np.ndarray] | None  # the panel's pixels in each image
+
+
+def levelled(pose: np.ndarray, up: np.ndarray, about: np.ndarray) -> np.ndarray:
+    """``pose`` (object to camera, 4x4) turned the least that puts its z axis along
+    ``up`` (camera frame), about the object point ``about`` (object frame)."""
+    z = pose[:3, 2]
+    axis = np.cross(z, up)
+    angle = math.atan2(float(np.linalg.norm(axis)), float(z @ up))
+    if angle < 1e-12:
+        return pose.copy()
+    turn = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+    pivot = pose[:3, :3] @ about + pose[:3, 3]
+    out = pose.copy()
+    out[:3, :3] = turn @ pose[:3, :3]
+    out[:3, 3] = pivot - out[:3, :3] @ about
+    return out
+
+
+def level_covariance(position_sd_m: float, yaw_sd_rad: float, tilt_sd_rad: float,
+                     up: np.ndarray) -> np.ndarray:
+    """The 6x6 covariance (calibration/edge_fit.py's motion, camera frame) of a level
+    object's start: ``position_sd_m`` per axis, turns about ``up`` (camera frame) by
+    ``yaw_sd_rad`` and about the horizontal axes by ``tilt_sd_rad``."""
+    along = np.outer(up, up)
+    out = np.zeros((6, 6))
+    out[:3, :3] = position_sd_m ** 2 * np.eye(3)
+    out[3:, 3:] = yaw_sd_rad ** 2 * along + tilt_sd_rad ** 2 * (np.eye(3) - along)
+    return out
 
 
 @dataclass(frozen=True)
@@ -172,10 +208,14 @@ class RelativeMeasurer:
         # it: that pose's own error (m at a metre) adds to both starts' uncertainty
         own = cam.pose_sd_m
         slot_start = self.slot_fits.get(name)
-        slot_sd = SLOT_REFIT_SD
+        position_sd, yaw_sd = SLOT_REFIT_SD
         if slot_start is None:
             slot_start = T_cam_world @ self.belief.pose
-            slot_sd = (math.hypot(self.belief.sd[0], own), self.belief.sd[1])
+            position_sd, yaw_sd = math.hypot(self.belief.sd[0], own), self.belief.sd[1]
+        up = T_cam_world[:3, 2]  # the world's vertical, in this camera's frame
+        tilt_sd = max(math.hypot(cam.rotation_sd_rad, self._turn_sd(cam)), LEVEL_SD_RAD)
+        slot_start = levelled(slot_start, up, self.slot.centres.mean(axis=0))
+        slot_sd = level_covariance(position_sd, yaw_sd, tilt_sd, up)
         found = measure_relative(images, self.rig, self.panel, T_cam_world @ panel.pose,
                                  (math.hypot(panel.position_sd_m, own),
                                   panel.rotation_sd_rad), self.slot, slot_start, slot_sd,
@@ -194,13 +234,17 @@ class RelativeMeasurer:
         return found, record, (d, c), T_world_cam @ found.object_fit.pose
 
     def step(self, cameras: list[Camera], pairs: dict[str, tuple[Images, Masks]],
-             panel: PanelBelief) -> Measurement:
-        """Every camera's measurement of this step, fused; the panel's orientation
-        belief takes in every camera's fit."""
+             panel: PanelBelief, prediction: tuple[np.ndarray, np.ndarray] | None = None
+             ) -> Measurement:
+        """Every camera's measurement of this step, fused (``prediction``, the displacement
+        expected from the last step and its covariance, world frame, arbitrates where the
+        cameras disagree: ``fuse_robust``); the panel's orientation belief takes in every
+        fit the fusion kept."""
         records: dict[str, dict[str, Any]] = {}
         fits: dict[str, Relative] = {}
         world: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         poses: dict[str, np.ndarray] = {}
+        turns: dict[str, np.ndarray] = {}  # what each fit says of the panel's rotation
         for cam in cameras:
             name = cam.robot.name
             images, masks = pairs[name]
@@ -215,7 +259,13 @@ class RelativeMeasurer:
                 spread = self._turn_sd(cam) ** 2  # the camera's own rotation error
                 if spread > 0:
                     information = np.linalg.pinv(np.linalg.pinv(information) + spread * np.eye(3))
-                panel.observe_rotation(pose[:3, :3], information)
-        fused = fuse(world)
-        best = min(world, key=lambda n: float(np.trace(world[n][1])), default=None)
+                turns[name] = information
+        fused = fuse_robust(world, prediction)
+        kept = [n for n in world if fused is None or n not in fused.dropped]
+        for name in kept:
+            panel.observe_rotation(poses[name][:3, :3], turns[name])
+        if fused is not None:
+            for name, why in fused.dropped.items():
+                records[name]["dropped"] = why
+        best = min(kept, key=lambda n: float(np.trace(world[n][1])), default=None)
         return Measurement(fused, None if best is None else poses[best], records, fits)

@@ -225,8 +225,12 @@ class InsertionTask(TaskImages):
             belief.rotation_information = np.eye(3) / ABSOLUTE_SD[1] ** 2
 
     def measure_relative(self, cameras: list[Camera], measurer: RelativeMeasurer,
-                         panel: PanelBelief) -> Measurement:
-        """Every camera's relative measurement of the panel against its slot, fused."""
+                         panel: PanelBelief,
+                         prediction: tuple[np.ndarray, np.ndarray] | None = None
+                         ) -> Measurement:
+        """Every camera's relative measurement of the panel against its slot, fused
+        (``prediction``: the displacement the last step leads to expect, and its
+        covariance)."""
         pairs: dict[str, Any] = {}
         for cam in cameras:
             pair = self.stereo_pair(cam.robot.camera, cam.robot.right_camera,
@@ -234,7 +238,7 @@ class InsertionTask(TaskImages):
             pairs[cam.robot.name] = (pair, None) if isinstance(pair, str) else (
                 (pair.left, pair.right), (pair.mask, pair.right_mask))
             self._last_pairs[cam.robot.name] = pair
-        return measurer.step(cameras, pairs, panel)
+        return measurer.step(cameras, pairs, panel, prediction)
 
     # ------------------------------------------------------------ the loop
 
@@ -266,6 +270,8 @@ class InsertionTask(TaskImages):
         log: list[dict[str, Any]] = []
         replacements: list[dict[str, Any]] = []
         measured: np.ndarray | None = None
+        # the displacement the last step leads to expect, and its covariance (world, m)
+        predicted: tuple[np.ndarray, np.ndarray] | None = None
         stopped_by = "max_steps"
         above = np.array([0.0, 0.0, cfg.approach_m])
         tolerance = min(cfg.tolerances) * self.model.size
@@ -292,10 +298,11 @@ class InsertionTask(TaskImages):
             steps = step + 1
             t = t0 + 2.0 + STEP_S * step
             covariance: np.ndarray | None = None
+            agreed = True  # the cameras fused agree within chance
             if cfg.measurement == "relative":
                 if relocate:  # the first step, or after one that measured nothing
                     self._relocate(cameras, belief)
-                found = self.measure_relative(cameras, measurer, belief)
+                found = self.measure_relative(cameras, measurer, belief, predicted)
                 relocate = found.fused is None
                 why = found.why
                 pose = found.panel
@@ -304,6 +311,7 @@ class InsertionTask(TaskImages):
                                           "true_displacement": truth.round(6).tolist()}
                 if found.fused is not None:
                     displacement, covariance = found.fused.displacement, found.fused.covariance
+                    agreed = found.fused.agreed
                     record["fused"] = found.fused.summary()
                 log.append(record)
                 self.recorder.task_view(t, cameras, self._last_pairs, found.fits)
@@ -336,7 +344,8 @@ class InsertionTask(TaskImages):
             self.recorder.panel(t, self.panel[:3, 3], pose[:3, 3],
                                 float(np.linalg.norm(displacement)))
             spread = np.zeros((3, 3)) if covariance is None else covariance
-            stop = stop_reason(displacement, spread, tolerance, cfg.stop_share, cfg.stop_sigmas)
+            stop = stop_reason(displacement, spread, tolerance, cfg.stop_share, cfg.stop_sigmas,
+                               agreed)
             if stop is not None:
                 stopped_by = stop
                 break
@@ -354,8 +363,11 @@ class InsertionTask(TaskImages):
             self._move_panel(self.panel[:3, 3] + executed)
             belief.pose[:3, 3] = pose[:3, 3] + step_vec
             measured_sd = largest_sd(spread)
-            belief.position_sd_m = float(np.linalg.norm(
-                [measured_sd, cfg.step_noise_m, cfg.step_scale * float(np.linalg.norm(step_vec))]))
+            execution_sd = math.hypot(cfg.step_noise_m,
+                                      cfg.step_scale * float(np.linalg.norm(step_vec)))
+            belief.position_sd_m = math.hypot(measured_sd, execution_sd)
+            predicted = (None if covariance is None else
+                         (displacement + step_vec, covariance + execution_sd ** 2 * np.eye(3)))
         truth_slot = self.data.site_xpos[self.slot_site]
         return TaskResult(
             self.model.size, cfg.tolerances, frame_robots=frame_robots or [], cameras=rows,

@@ -16,13 +16,15 @@ TRUSTED = ("corrected", "as commanded")  # pose statuses measured with at full w
 @dataclass(frozen=True)
 class Camera:
     """A placed camera: its robot, believed pose (4x4, MuJoCo camera convention), that
-    pose's uncertainty (m, at a metre) and status (``corrected``, ``uncertain``,
-    ``failed``: not corrected, or ``as commanded`` with correction off)."""
+    pose's uncertainty (m, at a metre; its rotation's alone, rad per axis) and status
+    (``corrected``, ``uncertain``, ``failed``: not corrected, or ``as commanded`` with
+    correction off)."""
 
     robot: Robot
     believed: np.ndarray
     pose_sd_m: float = 0.0
     pose_status: str = "as commanded"
+    rotation_sd_rad: float = 0.0
 
     @property
     def trusted(self) -> bool:
