@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from scipy.stats import chi2 as chi_square
+from scipy.stats import ncx2
 
 from .edge_fit import EdgeFit, Uncertainty, fit_edges, point_covariance
 from .edge_model import Boxes, StereoRig
@@ -174,24 +175,40 @@ def largest_sd(covariance: np.ndarray) -> float:
     return math.sqrt(max(float(np.linalg.eigvalsh(covariance).max()), 0.0))
 
 
+def within_probability(mean: np.ndarray, sd_m: float, tolerance_m: float) -> float:
+    """The probability that a displacement normally distributed about ``mean`` (m) with
+    ``sd_m`` per axis lies within ``tolerance_m`` of zero (non-central chi-square, three
+    degrees of freedom)."""
+    if sd_m <= 0:
+        return float(np.linalg.norm(mean) <= tolerance_m)
+    return float(ncx2.cdf((tolerance_m / sd_m) ** 2, 3, float(mean @ mean) / sd_m ** 2))
+
+
 def stop_reason(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: float,
-                share: float, sigmas: float, agreed: bool = True) -> str | None:
-    """Why the guided motion should stop here, if it should: the displacement is within
-    ``share`` of ``tolerance_m`` and its bound at ``sigmas`` standard deviations (the
-    covariance's largest axis) within the tolerance itself (the true displacement is
-    then within it with that confidence); or, where the measurement is too uncertain
-    ever to confirm that (``sigmas`` sd beyond the tolerance even at no displacement),
-    within ``share`` of it: no further step can be seen to do better. In between it goes
-    on: a step may bring the displacement near enough that its bound holds. A fusion of
-    cameras that disagree beyond chance (not ``agreed``) is uncertain by their
-    disagreement, which the next measurement may not share: it says nothing of what the
-    measurement can confirm, and the motion goes on."""
+                share: float, sigmas: float, agreed: bool = True, gain: float = 1.0,
+                execution_sd_m: float = 0.0) -> str | None:
+    """Why the guided motion should stop here, if it should, once the displacement is
+    within ``share`` of ``tolerance_m``: its bound at ``sigmas`` standard deviations (the
+    covariance's largest axis) is within the tolerance itself (the true displacement is
+    then within it with that confidence); or stopping here is likelier to end within the
+    tolerance than one more step, which moves by ``gain`` of the displacement and errs by
+    ``execution_sd_m`` per axis on top of this measurement's error (each probability with
+    the largest axis's sd on every axis: ``within_probability``). Otherwise it goes on. A
+    fusion of cameras that disagree beyond chance (not ``agreed``) is uncertain by their
+    disagreement, which the next measurement may not share: only the first reason
+    stops it."""
     length = float(np.linalg.norm(displacement))
     if length > share * tolerance_m:
         return None
     worst = largest_sd(covariance)
     if length + sigmas * worst <= tolerance_m:
         return "confident within the tightest tolerance"
-    if sigmas * worst > tolerance_m and agreed:
-        return "within stop_share of the tightest tolerance, which the measurement cannot confirm"
+    if not agreed:
+        return None
+    now = within_probability(displacement, worst, tolerance_m)
+    after = within_probability((1 - gain) * displacement, math.hypot(worst, execution_sd_m),
+                               tolerance_m)
+    if now >= after:
+        return (f"within stop_share of the tightest tolerance, where stopping ({now:.2f}) is "
+                f"likelier than one more step ({after:.2f}) to end within it")
     return None

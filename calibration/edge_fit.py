@@ -16,6 +16,12 @@ every fitted model, grown by a pixel and a half so that points next to another m
 outline are not used either. Edges along the image rows carry no disparity; the ends,
 corners and the edges across the rows constrain depth, and every edge is used.
 
+The fit's covariance counts the edge points' errors as they are: each point's own noise,
+and a bias that all points of one edge in one image share (aliasing and blur along it),
+both measured from the fit's own residuals (see ``_covariance``); points along one edge
+are therefore not independent measurements, and a direction held by a few edges is as
+uncertain as those edges are.
+
 Frames: OpenCV camera (+z forward, +x right, +y down), the left camera's; the right one
 sits ``baseline_m`` along its +x. Poses map object to left-camera coordinates; a pose's
 uncertainty is a 6x6 covariance of a small motion (translation, then rotation vector)
@@ -55,14 +61,6 @@ MIN_EXPLAINED = 0.5
 MIN_UNHIDDEN = 0.3  # and at least this share of its edges not hidden by the other models
 MIN_COVER = 0.9  # and its silhouette this share of the object's pixels (its colour's hull)
 COMPARE_SCALE_PX = 0.5  # residual scale at which fits from different starts are compared
-# The fit's covariance counts every edge point as an independent measurement; neighbours
-# along an edge are not (the render's aliasing and the lens's blur are shared), so its
-# standard deviations are scaled by this: over 180 rendered views at 0.5-1.2 m and 0-50
-# deg (bench/measurement.py --views 20, seed 0, in focus, unoccluded) the 95th
-# percentile of the displacement's error in its own standard deviations was 7.5 where a
-# true covariance gives 2.80 (the root of chi-square with 3 degrees of freedom); the
-# median, 2.5 against 1.54, says the errors' tail is heavier than a Gaussian's
-FIT_SD_SCALE = 2.7
 ITERATIONS = 12  # moving-edge iterations from each start (it settles in 4-6)
 # which edges are seen is decided at these iterations (the start, and where the coarse
 # searches have brought the pose); between, the same points are projected anew
@@ -229,7 +227,7 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
     last: tuple[Any, ...] | None = None
     for it in range(ITERATIONS):
         centre = pose[:3, :3] @ middle + pose[:3, 3]
-        rows, residuals, matched, roomy = [], [], [], []
+        rows, residuals, matched, roomy, groups = [], [], [], [], []
         if it == 0 or (it in RESAMPLE_AT and first_reach > FINE_RANGE_PX):
             seen = [visible_samples(pose, boxes, rig, c, occluders, reach + 2) for c in (0, 1)]
         expected = searchable = 0
@@ -245,6 +243,7 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
             residuals.append(-found[ok])  # predicted minus found, along the normal
             matched.append(samples.pixels[ok] + found[ok, None] * samples.normals[ok])
             roomy.append(samples.reach[ok] >= 1)
+            groups.append(2 * samples.edge[ok] + camera)  # an edge in one image
         J, r = np.concatenate(rows), np.concatenate(residuals)
         if len(r) < MIN_INLIERS:
             return EdgeFit(pose, np.full((6, 6), np.inf), 0, np.inf, middle, np.inf, matched,
@@ -257,12 +256,13 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
         H = J.T @ (w[:, None] * J) + prior
         xi = -np.linalg.solve(H, J.T @ (w * r) + prior @ away)
         pose = _twist(xi, centre) @ pose
-        last = (H, r, w, matched, expected, away, searchable, np.concatenate(roomy))
+        last = (H, J, r, w, scale, np.concatenate(groups), matched, expected, away, searchable,
+                np.concatenate(roomy))
         reach = max(FINE_RANGE_PX, reach - 1)
         if it >= 2 and np.linalg.norm(xi[:3]) < 1e-6 and np.linalg.norm(xi[3:]) < 1e-6:
             break
     assert last is not None
-    H, r, w, matched, expected, away, searchable, free = last
+    H, J, r, w, scale, edge_of, matched, expected, away, searchable, free = last
     inliers = int((w > 0).sum())
     # Tukey's loss at a common scale, every edge point shown but not found an outlier,
     # and the prior: which start's fit is the most probable
@@ -281,9 +281,40 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
     elif (explained := int(((w > 0) & free).sum())) < MIN_EXPLAINED * searchable:
         why = (f"{explained} of the {searchable} edge points the model shows apart from "
                f"its other edges agree with it (at least {MIN_EXPLAINED:.0%} needed)")
-    scale = FIT_SD_SCALE ** 2
-    return EdgeFit(pose, scale * np.linalg.inv(H), inliers, rms, middle, cost, matched, why,
-                   (H - prior) / scale)
+    covariance, information = _covariance(J, r, w, scale, edge_of, prior)
+    return EdgeFit(pose, covariance, inliers, rms, middle, cost, matched, why, information)
+
+
+def _covariance(J: np.ndarray, r: np.ndarray, w: np.ndarray, scale: float,
+                edge_of: np.ndarray, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fit's covariance (6x6) and what its edges alone say (their information), with
+    the edge points' errors as they are: each point's own noise, and a bias its whole
+    edge shares (the render's aliasing and the lens's blur along it, an edge's shading),
+    which more points along that edge do not average away. Both are measured from the
+    fit's own inliers: the noise from the residuals' scatter about their edge's mean,
+    the bias from the edges' means beyond what that noise explains (the pose has taken
+    up six of the edges' degrees of freedom). The covariance is then the least-squares
+    one for those errors (the sandwich H^-1 J^T W S W J H^-1, the prior as one more
+    measurement); ``w`` are the fit's weights (Tukey's, over ``scale`` squared),
+    ``edge_of`` each point's edge."""
+    tukey = w * scale ** 2
+    inlier = tukey > 0
+    Ji, ri, wi, ti = J[inlier], r[inlier], w[inlier], tukey[inlier]
+    _, edge = np.unique(edge_of[inlier], return_inverse=True)
+    count = np.bincount(edge, weights=ti)
+    mean = np.bincount(edge, weights=ti * ri) / count
+    scatter_dof = float(ti.sum()) - len(count)
+    noise = (float(np.sum(ti * (ri - mean[edge]) ** 2)) / scatter_dof if scatter_dof > 0
+             else float(np.sum(ti * ri ** 2) / ti.sum()))
+    sides = count >= 2  # an end is one point: its bias and its noise are one
+    bias = max(0.0, float(np.sum((mean ** 2 - noise / count)[sides]))
+               / max(int(sides.sum()) - 6, 1))
+    pulls = np.zeros((len(count), 6))
+    np.add.at(pulls, edge, wi[:, None] * Ji)  # what each edge's shared error does
+    spread = noise * Ji.T @ ((wi ** 2)[:, None] * Ji) + bias * pulls.T @ pulls
+    edges = Ji.T @ (wi[:, None] * Ji)
+    inverse = np.linalg.inv(edges + prior)
+    return inverse @ (spread + prior) @ inverse, edges @ np.linalg.pinv(spread) @ edges
 
 
 def point_covariance(fit: EdgeFit, point: np.ndarray) -> np.ndarray:

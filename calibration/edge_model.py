@@ -106,6 +106,7 @@ class Samples:
     reach: np.ndarray  # how far (px) each may search: halfway to its nearest other edge
     tangent: np.ndarray  # its edge's direction (object frame; at an end, outward)
     end: np.ndarray  # bool: searched along its edge (an end), not across it
+    edge: np.ndarray  # which edge (or end) each lies on: points of one share its bias
     alone: int = 0  # how many there would be if the other models hid nothing
 
     def moved(self, pose: np.ndarray, rig: StereoRig, camera: int) -> Samples:
@@ -195,14 +196,14 @@ def visible_samples(pose: np.ndarray, boxes: Boxes, rig: StereoRig, camera: int,
     tangent = ends[which, 1] - ends[which, 0]
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     sides = Samples(local[use], pixels[use], image_normals[use], room[use] / 2, tangent[use],
-                     np.zeros(int(use.sum()), bool), alone)
+                     np.zeros(int(use.sum()), bool), which[use], alone)
     return _join(sides, _end_samples(ends, owner, pose, boxes, rig, camera, occluders,
                                      margin_px))
 
 
 def _none() -> Samples:
     return Samples(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0),
-                    np.zeros((0, 3)), np.zeros(0, bool), 0)
+                    np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0, int), 0)
 
 
 def _join(a: Samples, b: Samples) -> Samples:
@@ -210,7 +211,7 @@ def _join(a: Samples, b: Samples) -> Samples:
         return np.concatenate([getattr(a, name), getattr(b, name)])
 
     return Samples(both("points"), both("pixels"), both("normals"), both("reach"),
-                    both("tangent"), both("end"), a.alone + b.alone)
+                    both("tangent"), both("end"), both("edge"), a.alone + b.alone)
 
 
 def _end_samples(ends: np.ndarray, owner: np.ndarray, pose: np.ndarray, boxes: Boxes,
@@ -246,5 +247,7 @@ def _end_samples(ends: np.ndarray, owner: np.ndarray, pose: np.ndarray, boxes: B
     use &= ~by_others
     outward = np.concatenate([ends[:, 0] - ends[:, 1], ends[:, 1] - ends[:, 0]])
     outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-12)
+    # each end is its own edge, numbered after the edges (one per end of each)
     return Samples(points[use], pixels[use], out[use], np.minimum(room[use], length[use]) / 2,
-                    outward[use], np.ones(int(use.sum()), bool), alone)
+                    outward[use], np.ones(int(use.sum()), bool),
+                    len(ends) + np.flatnonzero(use), alone)

@@ -321,7 +321,8 @@ class TaskConfig(Checked):
     # "absolute": the panel from stereo points and the slot from the holes' frame
     measurement: Literal["relative", "absolute"] = "relative"
     # stop when the fused displacement is within stop_share of the tightest tolerance and
-    # its bound at stop_sigmas standard deviations within the tolerance itself
+    # its bound at stop_sigmas standard deviations within the tolerance itself, or
+    # stopping there is likelier to end within it than one more (erring) step
     stop_share: float = checked(lambda v: 0 < v <= 1, "a fraction in (0, 1]", 0.5)
     stop_sigmas: float = nonnegative(2.0)
     lost_limit: int = checked(lambda v: 1 <= v <= 100, "an integer 1 to 100", 3)

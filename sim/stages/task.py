@@ -344,8 +344,10 @@ class InsertionTask(TaskImages):
             self.recorder.panel(t, self.panel[:3, 3], pose[:3, 3],
                                 float(np.linalg.norm(displacement)))
             spread = np.zeros((3, 3)) if covariance is None else covariance
+            next_error = math.hypot(cfg.step_noise_m, cfg.step_scale * cfg.gain
+                                    * float(np.linalg.norm(displacement)))  # a step's, m
             stop = stop_reason(displacement, spread, tolerance, cfg.stop_share, cfg.stop_sigmas,
-                               agreed)
+                               agreed, cfg.gain, next_error)
             if stop is not None:
                 stopped_by = stop
                 break
