@@ -252,15 +252,18 @@ def main() -> None:
     parser.add_argument("--angles", type=_floats, default=ANGLES, help="only these angles")
     parser.add_argument("--occlusions", type=_floats, default=OCCLUSIONS,
                         help="only these occlusions")
+    parser.add_argument("--samples", type=int, default=None,
+                        help="multisample anti-aliasing, samples a pixel (default: Table 1's, "
+                             "0; the default scenario's is 4); results not written")
     args = parser.parse_args()
     whole = (tuple(args.distances), tuple(args.angles), tuple(args.occlusions)) == (
-        DISTANCES, ANGLES, OCCLUSIONS)
+        DISTANCES, ANGLES, OCCLUSIONS) and args.samples is None
     n = args.views or (5 if args.quick else 50)
     rng = np.random.default_rng(args.seed)
     started = time.perf_counter()
     rows: list[dict[str, Any]] = []
     records: list[dict[str, Any]] = []
-    site = Site(rng)
+    site = Site(rng, args.samples)
     cells = [(d, a, o) for d in args.distances for a in args.angles for o in args.occlusions]
     try:
         for i, (d, a, o) in enumerate(cells):

@@ -62,13 +62,15 @@ OCCLUDER_HALF_M = (0.6, 0.6, 0.003)  # the occluding plate's half extents
 HIDDEN = np.array([0.0, 0.0, -5.0])  # where the occluder waits when there is none
 
 
-def bench_scenario() -> Scenario:
+def bench_scenario(samples: int | None = None) -> Scenario:
     """Table 1's scenario (the default with the sweep's overrides: no MSAA, the work-piece
     off by 1 cm / 2 deg, 16 px stereo margin) with one robot and one box obstacle, the
-    occluder, whose pose and size the views set."""
+    occluder, whose pose and size the views set; ``samples``: MSAA other than Table 1's."""
     s = load_sweep(TABLE1).scenario
+    camera = s.camera if samples is None else dataclasses.replace(s.camera, samples=samples)
     return dataclasses.replace(
         s, seed=0, robots=dataclasses.replace(s.robots, count=1, bases=s.robots.bases[:1]),
+        camera=camera,
         obstacles=(ObstacleConfig(shape="box", position=(1.2, 1.2, 0.1), size=(0.05,) * 3),))
 
 
@@ -162,8 +164,8 @@ def through_plate(eye: np.ndarray, points: np.ndarray, centre: np.ndarray, n: np
 class Site:
     """The scene, the task's measuring code and the renderer the views share."""
 
-    def __init__(self, rng: np.random.Generator) -> None:
-        s = self.scenario = bench_scenario()
+    def __init__(self, rng: np.random.Generator, samples: int | None = None) -> None:
+        s = self.scenario = bench_scenario(samples)
         self.scene = build_scene(s)
         self.rng = rng
         self.model = copy.deepcopy(self.scene.model)  # the true world (the work-piece off)
