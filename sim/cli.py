@@ -136,6 +136,8 @@ def report(args: argparse.Namespace) -> int:
     except ResultsError as exc:
         raise exc.given_as("<file>") from None
     print(out["markdown"], end="")
+    print()
+    print(out["orderings"], end="")
     _log("wrote " + ", ".join(str(p) for p in out["paths"].values()))
     return EXIT_OK
 

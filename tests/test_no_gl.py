@@ -117,9 +117,12 @@ def test_report_works_without_gl(results_db, tmp_path):
     table = done.stdout
     assert "Optimal (rating function)" in table and "Biased random" in table, table
     assert "100 [" in table and "50 [" in table, table  # 2 of 2 and 1 of 2
-    for ext in ("md", "csv", "png"):
-        assert (out / f"smoke.{ext}").stat().st_size > 0
-    assert (out / "smoke.md").read_text() == table
+    for name in ("smoke.md", "smoke.csv", "smoke.png", "smoke-orderings.md",
+                 "smoke-orderings.csv"):
+        assert (out / name).stat().st_size > 0
+    # the table, then the paper's orderings tested on it
+    assert table == (out / "smoke.md").read_text() + "\n" + (
+        out / "smoke-orderings.md").read_text()
     assert results_db.read_bytes() == before  # read only
 
 

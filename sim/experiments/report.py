@@ -199,14 +199,22 @@ def write_chart(table: list[Cell], path: Path) -> None:
 
 def report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:
     """Write ``<db stem>.md``, ``.csv`` and ``.png`` into ``out`` (default: beside the
-    database); returns the Markdown and the paths."""
+    database), and the paper's orderings tested (sim/experiments/orderings.py) as
+    ``<db stem>-orderings.md`` and ``.csv``; returns both Markdown texts and the paths."""
+    from sim.experiments import orderings as claims  # it reads this module's tables
+
     db = Path(db)
     table = cells(db)
+    tested = claims.orderings_in(db)
     folder = Path(out) if out is not None else db.parent
     folder.mkdir(parents=True, exist_ok=True)
     text = markdown(table)
+    ordered = claims.markdown(tested)
     paths = {ext: folder / f"{db.stem}.{ext}" for ext in ("md", "csv", "png")}
+    paths |= {f"orderings {ext}": folder / f"{db.stem}-orderings.{ext}" for ext in ("md", "csv")}
     paths["md"].write_text(text)
     write_csv(table, paths["csv"])
     write_chart(table, paths["png"])
-    return {"markdown": text, "paths": paths}
+    paths["orderings md"].write_text(ordered)
+    claims.write_csv(tested, paths["orderings csv"])
+    return {"markdown": text, "orderings": ordered, "paths": paths}
