@@ -19,7 +19,8 @@ from placement.rating import circle_in_plane
 
 @dataclass(frozen=True)
 class Target:
-    """A circular-hole target in the world frame (m)."""
+    """A circular-hole target in the world frame (m); or, with ``half_length`` > 0, a
+    slot: ``half_length`` either side along ``axis`` and ``radius`` across."""
 
     name: str
     role: str  # "primary" or "secondary"
@@ -28,6 +29,8 @@ class Target:
     normal: np.ndarray  # unit, pointing out of the plate
     radius: float
     st_error: float
+    half_length: float = 0.0
+    axis: np.ndarray | None = None
 
     def rim(self, count: int = 8, scale: float = 1.0) -> np.ndarray:
         """``count`` points on the rim circle (scaled by ``scale``), shape (count, 3)."""

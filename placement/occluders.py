@@ -66,9 +66,17 @@ class Hull:
 
 
 def target_outline(target: TargetModel, sides: int = 8) -> np.ndarray:
-    """Offsets (sides, 3) of a polygon in the target's plane that contains its disc (the
-    polygon circumscribes the circle of the target's radius)."""
-    return circle_in_plane(target.normal, target.radius / np.cos(np.pi / sides), sides)
+    """Offsets in the target's plane of a polygon that contains it: a disc's (``sides``
+    corners, circumscribing the circle of its radius), or a slot's rectangle (its four
+    corners, exactly)."""
+    if target.half_length <= 0 or target.axis is None:
+        return circle_in_plane(target.normal, target.radius / np.cos(np.pi / sides), sides)
+    n = np.asarray(target.normal, float) / np.linalg.norm(target.normal)
+    along = np.asarray(target.axis, float) - (np.asarray(target.axis, float) @ n) * n
+    along /= np.linalg.norm(along)
+    across = np.cross(n, along)
+    return np.array([a * target.half_length * along + b * target.radius * across
+                     for a, b in ((1, 1), (-1, 1), (-1, -1), (1, -1))])
 
 
 def hull_of(points: np.ndarray, outline: np.ndarray | None = None) -> Hull | None:

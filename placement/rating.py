@@ -25,13 +25,22 @@ class CameraModel:
 
 @dataclass(frozen=True)
 class TargetModel:
-    """A target as the rating sees it (m); ``st_error`` is eq. 4's secondary tolerance."""
+    """A target as the rating sees it (m); ``st_error`` is eq. 4's secondary tolerance.
+    A disc of ``radius``; or, with ``half_length`` > 0, a slot: a rectangle in the
+    target's plane, ``half_length`` either side along ``axis`` and ``radius`` across."""
 
     name: str
     position: np.ndarray
     normal: np.ndarray
     radius: float
     st_error: float = 0.0
+    half_length: float = 0.0
+    axis: np.ndarray | None = None
+
+    def shape(self) -> tuple[float, ...]:
+        """What its outline depends on besides the plane: radius, half length, axis."""
+        axis = () if self.axis is None else tuple(np.round(self.axis, 9))
+        return (self.radius, self.half_length, *axis)
 
 
 def circle_in_plane(normal: np.ndarray, radius: float, count: int) -> np.ndarray:

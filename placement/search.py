@@ -18,7 +18,7 @@ import numpy as np
 from mapping import LOG_ODDS_SCALE, OccupancyGrid, stored_log_odds
 
 from .errors import PlacementError
-from .occluders import Hull, expanded_hulls, grid_occluders
+from .occluders import Hull, expanded_hulls, grid_occluders, target_outline
 from .rating import CameraModel, Ratings, TargetModel, Weights, circle_in_plane, rate_best
 from .tfv import clearance_map
 
@@ -74,9 +74,11 @@ class RatingField:
 
 
 def target_points(target: TargetModel, rim: int = 4) -> np.ndarray:
-    """The target's centre and ``rim`` points at 0.9 of its radius, 1 mm above its face."""
+    """The target's centre and ``rim`` points at 0.9 of its radius (a slot: its corners,
+    at 0.9 of the way out), 1 mm above its face."""
     n = target.normal / np.linalg.norm(target.normal)
-    ring = circle_in_plane(n, 0.9 * target.radius, rim)
+    ring = (0.9 * target_outline(target) if target.half_length > 0
+            else circle_in_plane(n, 0.9 * target.radius, rim))
     return target.position + 0.001 * n + np.vstack([np.zeros(3), ring])
 
 
@@ -179,15 +181,18 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
     for k, target in enumerate(targets):
         n = target.normal / np.linalg.norm(target.normal)
         plane = (*np.round(n, 9), round(float(n @ target.position), 9))
-        if plane not in hulls_by_plane:  # targets on one plate share their occluders
-            key = (*plane, target.radius)
+        # discs on one plate share their occluders, expanded hulls scaled by radius; a
+        # slot's rectangle is not a scaled disc: its own
+        sharing = plane if target.half_length <= 0 else (*plane, *target.shape())
+        if sharing not in hulls_by_plane:
+            key = (*plane, *target.shape())
             if key not in grid_hulls:
                 grid_hulls[key] = expanded_hulls(grid_occluders(
                     grid, target, unknown_occludes=settings.unknown_occludes,
                     block=settings.block), target)
-            hulls_by_plane[plane] = (target.radius, [
+            hulls_by_plane[sharing] = (target.radius, [
                 *grid_hulls[key], *expanded_hulls(list(extra_occluders), target)])
-        radius, first = hulls_by_plane[plane]  # and their expanded hulls, scaled
+        radius, first = hulls_by_plane[sharing]  # and their expanded hulls, scaled
         hulls[target.name] = (first if target.radius == radius else
                               [h.grown(target.radius / radius) for h in first])
         tfv[k] = clearance_map(target.position, hulls[target.name], camera.near, camera.far,

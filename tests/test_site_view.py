@@ -30,6 +30,8 @@ from sim.stages.task import panel_model
 from sim.world.scene import build_scene
 
 S = load_scenario()
+ALONG = np.array([0.0, 1.0, 0.0])  # the slot's length (the work-piece's y axis)
+HALF_WIDTH = 0.007  # between the rails' inner faces: 14 mm
 
 
 @pytest.fixture(scope="module")
@@ -79,25 +81,27 @@ def hiding_a(site: TargetModel, slot: np.ndarray) -> np.ndarray:
     return on_line - [0.0, 0.0, 0.075]
 
 
-def test_the_site_is_the_slot_facing_up_the_panels_half_length_wide(workpiece):
+def test_the_site_is_the_slot_facing_up_as_long_as_the_panel(workpiece):
     panel, slot = workpiece
-    site = site_target(mapped(slot), S, slot, panel)
-    assert site.radius == pytest.approx(0.1)  # 200 mm panel
+    site = site_target(mapped(slot), S, slot, panel, ALONG, HALF_WIDTH)
+    assert site.half_length == pytest.approx(0.1)  # 200 mm panel
+    assert site.radius == HALF_WIDTH and np.allclose(site.axis, ALONG)  # 14 mm across
     assert np.allclose(site.normal, [0, 0, 1])
     assert np.allclose(site.position[:2], slot[:2])
     # lifted over the voxel the rails' tops were mapped into: [0.55, 0.60] m, + 1 mm
     assert site.position[2] == pytest.approx(0.601)
-    assert site_target(mapped(slot, rails=False), S, slot, panel).position[2] == slot[2]
+    bare = site_target(mapped(slot, rails=False), S, slot, panel, ALONG, HALF_WIDTH)
+    assert bare.position[2] == slot[2]
     # a panel standing in the slot is not climbed: at most MAX_LIFT_M
     g = mapped(slot)
     occupy(g, slot + [-0.05, -0.1, 0.0], slot + [0.05, 0.1, 0.3])
-    assert site_target(g, S, slot, panel).position[2] <= slot[2] + MAX_LIFT_M
+    assert site_target(g, S, slot, panel, ALONG, HALF_WIDTH).position[2] <= slot[2] + MAX_LIFT_M
 
 
 def test_tfv_at_is_what_the_clearance_map_reads(workpiece):
     panel, slot = workpiece
     g = mapped(slot)
-    site = site_target(g, S, slot, panel)
+    site = site_target(g, S, slot, panel, ALONG, HALF_WIDTH)
     hulls = expanded_hulls(grid_occluders(g, site) + [box_corners(panel, at(slot + A / 3))],
                            site)
     cmap = clearance_map(site.position, hulls, 0.35, 1.5)
@@ -114,7 +118,7 @@ def test_tfv_at_is_what_the_clearance_map_reads(workpiece):
 def test_the_site_rating_is_the_searchs_rating_with_the_panel_as_one_more_hull(workpiece):
     panel, slot = workpiece
     g = mapped(slot)
-    site = site_target(g, S, slot, panel)
+    site = site_target(g, S, slot, panel, ALONG, HALF_WIDTH)
     pose = at(hiding_a(site, slot))
     move_object(g, panel, None, pose)  # the map follows the panel
     p = RatingProblem(g, S)
@@ -133,7 +137,7 @@ def test_the_site_rating_is_the_searchs_rating_with_the_panel_as_one_more_hull(w
 def test_the_cache_follows_the_map_as_the_panel_moves(workpiece):
     panel, slot = workpiece
     g = mapped(slot)
-    site = site_target(g, S, slot, panel)
+    site = site_target(g, S, slot, panel, ALONG, HALF_WIDTH)
     cache = SiteCache()
     last = at(slot + AWAY)
     site_rating(g, S, site, slot + A, last, panel, cache=cache)
@@ -157,7 +161,7 @@ def test_the_trigger_fires_when_the_panel_hides_a_cameras_view(workpiece):
     time."""
     panel, slot = workpiece
     g = mapped(slot)
-    site = site_target(g, S, slot, panel)
+    site = site_target(g, S, slot, panel, ALONG, HALF_WIDTH)
     cache = SiteCache()
     away, hide = at(slot + AWAY), at(hiding_a(site, slot))
 
@@ -197,12 +201,30 @@ def test_the_trigger_fires_when_the_panel_hides_a_cameras_view(workpiece):
     assert again[:-1] == [None] * (HOLD - 1) and again[-1] is not None
 
 
+def test_the_panel_over_the_slot_hides_it_from_above_and_end_on_not_from_the_side(
+        workpiece):
+    """The panel hanging 0.15 m over the slot (its approach), on the map and as a hull:
+    a camera straight above it (0.8 m) or looking along the slot (0.5 m along, 0.5 m up)
+    sees the 14 mm slot only past the panel, which covers it; cameras across the slot
+    (A, B: 37 deg up; and 15 deg up, 0.93 m away) see under the panel's bottom edge."""
+    panel, slot = workpiece
+    g = mapped(slot)
+    site = site_target(g, S, slot, panel, ALONG, HALF_WIDTH)
+    over = at(slot + [0.0, 0.0, 0.15])
+    move_object(g, panel, None, over)
+    for camera in (np.array([0.0, 0.0, 0.8]), np.array([0.0, 0.5, 0.5])):
+        assert site_rating(g, S, site, slot + camera, over, panel).total == 0
+    for camera in (A, B, np.array([-0.9, 0.0, 0.25])):
+        rating = site_rating(g, S, site, slot + camera, over, panel)
+        assert rating.terms["tfv"] > 0.05 and rating.total > 0
+
+
 def test_the_panel_in_the_slot_hides_the_site_from_everywhere(workpiece):
     """Its hull holds the site: every camera rates 0, none could do better, so no
     candidate is worth a move."""
     panel, slot = workpiece
     g = mapped(slot)
-    site = site_target(g, S, slot, panel)
+    site = site_target(g, S, slot, panel, ALONG, HALF_WIDTH)
     inserted = at(slot)
     move_object(g, panel, None, inserted)
     for camera in (A, B, np.array([0.0, 0.4, 0.9])):

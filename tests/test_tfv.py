@@ -122,6 +122,30 @@ def test_cone_expansion_matches_rays_to_the_whole_target():
     assert (paper & ~truth).sum() > 5 * max((cone & ~truth).sum(), 1)
 
 
+def test_a_slot_is_expanded_by_its_rectangle():
+    """A slot target 0.2 m long (along x + y, given a little out of its plane) and 14 mm
+    wide: its outline is the rectangle's four corners, by hand; and occluded by the
+    cone-expanded hull <=> some ray from the camera to the slot (its outline and
+    inside, sampled) meets the box."""
+    slot = TargetModel("s", np.zeros(3), UP, 0.007, half_length=0.1,
+                       axis=np.array([1.0, 1.0, 0.3]))
+    a = np.array([1.0, 1.0, 0.0]) / math.sqrt(2)
+    b = np.array([-1.0, 1.0, 0.0]) / math.sqrt(2)  # up x a
+    corners = [0.1 * i * a + 0.007 * j * b for i, j in ((1, 1), (-1, 1), (-1, -1), (1, -1))]
+    assert np.allclose(target_outline(slot), corners)
+    rng = np.random.default_rng(7)
+    az, el = rng.uniform(-1.2, 1.2, 4000), rng.uniform(0.0, 1.2, 4000)
+    u = np.column_stack([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)])
+    d = rng.uniform(0.35, 1.5, 4000)
+    ii, jj = np.meshgrid(np.linspace(-1, 1, 41), np.linspace(-1, 1, 5))
+    points = 0.1 * ii.reshape(-1, 1) * a + 0.007 * jj.reshape(-1, 1) * b
+    truth = segments_hit_box(d[:, None] * u, points, BOX.min(0), BOX.max(0))
+    cone = hull_depths(slot.position, expanded_hulls([BOX], slot), u, cone=True) < d
+    assert truth.sum() > 1000 and (~truth).sum() > 1000
+    assert np.all(cone[truth])  # conservative
+    assert np.mean(cone != truth) < 0.003  # exact but for the sampling of the rectangle
+
+
 def test_tfv_is_zero_behind_the_occluder_and_grows_away_from_it():
     cmap = clearance_map(TARGET.position, expanded_hulls([BOX], TARGET), 0.35, 1.5)
     arc = np.radians(np.arange(0, 181, 10))

@@ -17,7 +17,7 @@ from sim.stages.corrector import PoseCorrector
 from sim.stages.place import place, ranked_field
 from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import RatingProblem
-from sim.stages.relative import SlotBelief, believed_slot
+from sim.stages.relative import SlotBelief, believed_slot, slot_half_width
 from sim.stages.site_view import SiteWatch, box_corners
 from sim.stages.task import InsertionTask, Replacement, panel_model
 from sim.stages.task_result import Camera, TaskResult
@@ -70,9 +70,10 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
 
     # the site watched with the panel as the one occluder that moves; the robots stand
     # still during the task and were accounted for when the cameras were placed
-    watch = SiteWatch(world.grid, s, slot.position, task.model)
+    watch = SiteWatch(world.grid, s, slot.position, task.model, slot.pose[:3, 1],
+                      slot_half_width(task.slot_boxes))
     site = Target("insertion site", "site", "", watch.site.position, watch.site.normal,
-                  watch.site.radius, 0.0)
+                  watch.site.radius, 0.0, watch.site.half_length, watch.site.axis)
 
     def replace(cam: Camera, step: int, reason: str, current: float | None,
                 panel: np.ndarray) -> Replacement | None:

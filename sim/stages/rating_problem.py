@@ -36,7 +36,8 @@ def camera_model(s: Scenario) -> CameraModel:
 
 def target_model(t: Target) -> TargetModel:
     """A target as the rating function sees it."""
-    return TargetModel(t.name, t.position, t.normal, t.radius, t.st_error)
+    return TargetModel(t.name, t.position, t.normal, t.radius, t.st_error, t.half_length,
+                       t.axis)
 
 
 class RatingProblem:

@@ -138,6 +138,12 @@ def slot_model(model: mujoco.MjModel, site: str = "workpiece/slot",
     return Boxes(np.array(centres), np.array(halves))
 
 
+def slot_half_width(slot: Boxes) -> float:
+    """Half the slot's width (m): from its frame's origin, across (its x axis), to the
+    nearest wall's inner face."""
+    return float(np.min(np.abs(slot.centres[:, 0]) - slot.halves[:, 0]))
+
+
 @dataclass
 class PanelBelief:
     """The panel's pose as the task believes it (world): orientation from an information

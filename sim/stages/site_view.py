@@ -12,12 +12,16 @@ rated, not a search, and the map's occluders are kept between calls
 (:class:`SiteCache`): only the connected components of the map that changed are
 hulled again, so a step costs a few milliseconds.
 
-**The site** (:func:`site_target`): the slot (site ``workpiece/slot``), facing up,
-with the radius of the panel's half-length (0.1 m): the camera must see the whole part
-of the slot that the panel's 200 mm bottom edge goes into; the rails beyond it (the
-slot is 240 mm long) do not matter. The disc is conservative across the slot (14 mm
-wide). The site is lifted over the map's voxels that hold the work-piece's surface at
-the slot: the rails' tops (3 cm over the slot's floor) are mapped into the voxel above
+**The site** (:func:`site_target`): the slot (site ``workpiece/slot``), facing up, a
+slot-shaped target (placement's ``TargetModel`` with a half length): the panel's
+half-length (0.1 m) either side along the slot and the slot's half-width (7 mm) across,
+the part of the slot that the panel's 200 mm bottom edge goes into (the rails beyond it,
+the slot being 240 mm long, do not matter). Occluders are expanded by that rectangle:
+with the panel hanging over the slot, it is seen from across the slot, under the
+panel's bottom edge, and not from above or along it. (A disc of the panel's
+half-length, as before, was hidden by the hanging panel from every direction.) The site
+is lifted over the map's voxels that hold the work-piece's surface at the slot: the
+rails' tops (3 cm over the slot's floor) are mapped into the voxel above
 them when they lie on a voxel boundary, and would otherwise be an occluder on the
 site itself.
 
@@ -97,9 +101,10 @@ NEIGHBOURS = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k i
 
 
 def site_target(grid: OccupancyGrid, scenario: Scenario, slot: np.ndarray,
-                panel: BoxModel) -> TargetModel:
-    """The insertion site as a target: at ``slot`` (world, m), facing up, with radius
-    the panel's half-length, lifted over the solid voxels (occupied, or unknown if they
+                panel: BoxModel, along: np.ndarray, half_width: float) -> TargetModel:
+    """The insertion site as a target: a slot at ``slot`` (world, m), facing up, the
+    panel's half-length either side along ``along`` (the slot's length, world) and
+    ``half_width`` (m) across, lifted over the solid voxels (occupied, or unknown if they
     occlude) stacked on the slot's voxel in the slot's column and its 8 neighbours, at
     most MAX_LIFT_M, to OVER_SURFACE_M over their top. Compute it once, before the
     task moves the panel's voxels (with the panel over the slot it would climb it)."""
@@ -119,7 +124,8 @@ def site_target(grid: OccupancyGrid, scenario: Scenario, slot: np.ndarray,
         top += 1
     z = slot[2] if top == k else over(top)
     return TargetModel("insertion site", np.array([slot[0], slot[1], max(z, slot[2])]), UP,
-                       panel.size / 2)
+                       half_width, half_length=panel.size / 2,
+                       axis=np.asarray(along, float))
 
 
 def box_corners(model: BoxModel, pose: np.ndarray) -> np.ndarray:
@@ -206,7 +212,7 @@ class SiteCache:
         site from ``level`` (m) away along it; and a function giving those hulls packed
         (for the exact check near the occlusion boundary)."""
         key = (grid.origin.tobytes(), grid.shape, grid.resolution, site.position.tobytes(),
-               np.asarray(site.normal, float).tobytes(), site.radius,
+               np.asarray(site.normal, float).tobytes(), site.shape(),
                settings.unknown_occludes, settings.block, settings.directions, settings.cone)
         if key != self._key:
             self._reset()
@@ -406,9 +412,10 @@ class SiteWatch:
     again (:class:`ReplacementTrigger`); the site is fixed before the panel moves."""
 
     def __init__(self, grid: OccupancyGrid, scenario: Scenario, slot: np.ndarray,
-                 panel: BoxModel, others: Sequence[np.ndarray] = ()) -> None:
+                 panel: BoxModel, along: np.ndarray, half_width: float,
+                 others: Sequence[np.ndarray] = ()) -> None:
         self.grid, self.scenario, self.panel, self.others = grid, scenario, panel, others
-        self.site = site_target(grid, scenario, slot, panel)
+        self.site = site_target(grid, scenario, slot, panel, along, half_width)
         self.cache = SiteCache()
         self.trigger = ReplacementTrigger()
 
