@@ -37,8 +37,12 @@ class Target:
         return self.position + circle_in_plane(self.normal, scale * self.radius, count)
 
     def summary(self) -> dict[str, object]:
-        return {"name": self.name, "role": self.role, "position": self.position.tolist(),
-                "normal": self.normal.tolist(), "radius": self.radius}
+        out: dict[str, object] = {"name": self.name, "role": self.role,
+                                  "position": self.position.tolist(),
+                                  "normal": self.normal.tolist(), "radius": self.radius}
+        if self.half_length > 0 and self.axis is not None:  # a slot
+            out |= {"half_length": self.half_length, "axis": np.asarray(self.axis).tolist()}
+        return out
 
 
 @dataclass(frozen=True)
