@@ -12,13 +12,12 @@ Fisher's exact test where they did not (density steps compare different scenes).
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 
 from scipy.stats import binomtest, fisher_exact
 
-from sim.experiments.report import DIFFICULTY, NAMES, PAPER, wilson
+from sim.experiments.report import DIFFICULTY, NAMES, PAPER, percent, wilson, write_rows
 from sim.experiments.results import Results, ResultsError
 
 GAP_POINTS = 10.0  # the paper's cells must differ by more than this to make a claim
@@ -155,10 +154,7 @@ def markdown(orderings: list[Ordering]) -> str:
     lines += ["", "| family | higher (paper %) | lower (paper %) | ours: higher | ours: lower "
               "| reproduced | test | p |", "|---|---|---|---:|---:|:-:|---|---:|"]
     for o in orderings:
-        ours = []
-        for (s, n) in o.counts:
-            lo, hi = wilson(s, n)
-            ours.append(f"{100 * s / n:.0f} [{100 * lo:.0f}-{100 * hi:.0f}]")
+        ours = [percent(s, n) for s, n in o.counts]
         lines.append(f"| {o.family} | {_cell(o.higher)} ({PAPER[o.higher]}) | "
                      f"{_cell(o.lower)} ({PAPER[o.lower]}) | {ours[0]} | {ours[1]} | "
                      f"{'yes' if o.reproduces else 'no'} | {o.test} | {o.p_value:.2g} |")
@@ -166,12 +162,9 @@ def markdown(orderings: list[Ordering]) -> str:
 
 
 def write_csv(orderings: list[Ordering], path: Path) -> None:
-    with path.open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["family", "higher", "lower", "paper_gap_points", "higher_successes",
-                    "higher_trials", "lower_successes", "lower_trials", "reproduces", "test",
-                    "p_value"])
-        for o in orderings:
-            (s1, n1), (s2, n2) = o.counts
-            w.writerow([o.family, _cell(o.higher), _cell(o.lower), o.paper_gap, s1, n1, s2,
-                        n2, int(o.reproduces), o.test, f"{o.p_value:.6g}"])
+    write_rows(path, ["family", "higher", "lower", "paper_gap_points", "higher_successes",
+                      "higher_trials", "lower_successes", "lower_trials", "reproduces", "test",
+                      "p_value"],
+               ([o.family, _cell(o.higher), _cell(o.lower), o.paper_gap, *o.counts[0],
+                 *o.counts[1], int(o.reproduces), o.test, f"{o.p_value:.6g}"]
+                for o in orderings))

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import math
 from collections import defaultdict
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -104,9 +105,14 @@ def cells(db: str | Path) -> list[Cell]:
     return sorted(out, key=lambda c: (-c.tolerance, order.get(c.method, 99), c.density))
 
 
+def percent(successes: int, trials: int) -> str:
+    """A success rate as ``rate [Wilson 95 % interval]``, in whole percent."""
+    lo, hi = wilson(successes, trials)
+    return f"{100 * successes / trials:.0f} [{100 * lo:.0f}-{100 * hi:.0f}]"
+
+
 def _percent(c: Cell) -> str:
-    lo, hi = c.interval
-    return f"{100 * c.rate:.0f} [{100 * lo:.0f}-{100 * hi:.0f}]"
+    return percent(c.successes, c.trials)
 
 
 def markdown(table: list[Cell]) -> str:
@@ -150,18 +156,22 @@ def markdown(table: list[Cell]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_csv(table: list[Cell], path: Path) -> None:
+def write_rows(path: Path, header: list[str], rows: Iterable[list[Any]]) -> None:
+    """A CSV file: ``header``, then ``rows``."""
     with path.open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["method", "placement", "secondary", "density", "achieved_density",
-                    "tolerance", "trials", "successes", "success_pct", "wilson_low_pct",
-                    "wilson_high_pct", "paper_pct"])
-        for c in table:
-            lo, hi = c.interval
-            w.writerow([c.method, c.placement, int(c.secondary), c.density,
-                        round(c.achieved_density, 5), c.tolerance, c.trials, c.successes,
-                        round(100 * c.rate, 2), round(100 * lo, 2), round(100 * hi, 2),
-                        c.paper or ""])
+        w.writerow(header)
+        w.writerows(rows)
+
+
+def write_csv(table: list[Cell], path: Path) -> None:
+    write_rows(path, ["method", "placement", "secondary", "density", "achieved_density",
+                      "tolerance", "trials", "successes", "success_pct", "wilson_low_pct",
+                      "wilson_high_pct", "paper_pct"],
+               ([c.method, c.placement, int(c.secondary), c.density,
+                 round(c.achieved_density, 5), c.tolerance, c.trials, c.successes,
+                 round(100 * c.rate, 2), round(100 * c.interval[0], 2),
+                 round(100 * c.interval[1], 2), c.paper or ""] for c in table))
 
 
 def write_chart(table: list[Cell], path: Path) -> None:

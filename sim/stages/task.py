@@ -84,6 +84,14 @@ REFERENCE_FX_PX = 415.7
 MAX_POINTS_PER_CAMERA = 3000
 STEP_S = 1.0  # simulated time per steering step, for the recording
 OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)
+
+
+def execution_sd(cfg: TaskConfig, length_m: float) -> float:
+    """How far (m, per axis) a commanded step of ``length_m`` errs: ``step_noise_m`` and
+    ``step_scale`` of its length."""
+    return math.hypot(cfg.step_noise_m, cfg.step_scale * length_m)
+
+
 # The absolute measurement's panel pose is this good (m, rad per axis): its CAD fit to
 # stereo points errs 6-16 mm laterally (median-95th percentile) with the slot's error in
 # at 0.8-1.2 m (docs/measurement.md); it only starts the relative fits
@@ -344,8 +352,7 @@ class InsertionTask(TaskImages):
             self.recorder.panel(t, self.panel[:3, 3], pose[:3, 3],
                                 float(np.linalg.norm(displacement)))
             spread = np.zeros((3, 3)) if covariance is None else covariance
-            next_error = math.hypot(cfg.step_noise_m, cfg.step_scale * cfg.gain
-                                    * float(np.linalg.norm(displacement)))  # a step's, m
+            next_error = execution_sd(cfg, cfg.gain * float(np.linalg.norm(displacement)))
             stop = stop_reason(displacement, spread, tolerance, cfg.stop_share, cfg.stop_sigmas,
                                agreed, cfg.gain, next_error)
             if stop is not None:
@@ -365,11 +372,10 @@ class InsertionTask(TaskImages):
             self._move_panel(self.panel[:3, 3] + executed)
             belief.pose[:3, 3] = pose[:3, 3] + step_vec
             measured_sd = largest_sd(spread)
-            execution_sd = math.hypot(cfg.step_noise_m,
-                                      cfg.step_scale * float(np.linalg.norm(step_vec)))
-            belief.position_sd_m = math.hypot(measured_sd, execution_sd)
+            erred = execution_sd(cfg, float(np.linalg.norm(step_vec)))
+            belief.position_sd_m = math.hypot(measured_sd, erred)
             predicted = (None if covariance is None else
-                         (displacement + step_vec, covariance + execution_sd ** 2 * np.eye(3)))
+                         (displacement + step_vec, covariance + erred ** 2 * np.eye(3)))
         truth_slot = self.data.site_xpos[self.slot_site]
         return TaskResult(
             self.model.size, cfg.tolerances, frame_robots=frame_robots or [], cameras=rows,
