@@ -43,6 +43,7 @@ from .edge_search import (
     MAX_REGION_REACH_PX,
     align,
     align_region,
+    merge_bias_px,
     search_edges,
     search_reach_px,
     silhouette,
@@ -227,7 +228,7 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
     last: tuple[Any, ...] | None = None
     for it in range(ITERATIONS):
         centre = pose[:3, :3] @ middle + pose[:3, 3]
-        rows, residuals, matched, roomy, groups = [], [], [], [], []
+        rows, residuals, matched, roomy, groups, merged = [], [], [], [], [], []
         if it == 0 or (it in RESAMPLE_AT and first_reach > FINE_RANGE_PX):
             seen = [visible_samples(pose, boxes, rig, c, occluders, reach + 2) for c in (0, 1)]
         expected = searchable = 0
@@ -244,6 +245,7 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
             matched.append(samples.pixels[ok] + found[ok, None] * samples.normals[ok])
             roomy.append(samples.reach[ok] >= 1)
             groups.append(2 * samples.edge[ok] + camera)  # an edge in one image
+            merged.append(merge_bias_px(samples.apart[ok], rig.blur_sd_px))
         J, r = np.concatenate(rows), np.concatenate(residuals)
         if len(r) < MIN_INLIERS:
             return EdgeFit(pose, np.full((6, 6), np.inf), 0, np.inf, middle, np.inf, matched,
@@ -257,12 +259,12 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
         xi = -np.linalg.solve(H, J.T @ (w * r) + prior @ away)
         pose = _twist(xi, centre) @ pose
         last = (H, J, r, w, scale, np.concatenate(groups), matched, expected, away, searchable,
-                np.concatenate(roomy))
+                np.concatenate(roomy), np.concatenate(merged))
         reach = max(FINE_RANGE_PX, reach - 1)
         if it >= 2 and np.linalg.norm(xi[:3]) < 1e-6 and np.linalg.norm(xi[3:]) < 1e-6:
             break
     assert last is not None
-    H, J, r, w, scale, edge_of, matched, expected, away, searchable, free = last
+    H, J, r, w, scale, edge_of, matched, expected, away, searchable, free, merge = last
     inliers = int((w > 0).sum())
     # Tukey's loss at a common scale, every edge point shown but not found an outlier,
     # and the prior: which start's fit is the most probable
@@ -281,37 +283,44 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
     elif (explained := int(((w > 0) & free).sum())) < MIN_EXPLAINED * searchable:
         why = (f"{explained} of the {searchable} edge points the model shows apart from "
                f"its other edges agree with it (at least {MIN_EXPLAINED:.0%} needed)")
-    covariance, information = _covariance(J, r, w, scale, edge_of, prior)
+    covariance, information = _covariance(J, r, w, scale, edge_of, merge, prior)
     return EdgeFit(pose, covariance, inliers, rms, middle, cost, matched, why, information)
 
 
 def _covariance(J: np.ndarray, r: np.ndarray, w: np.ndarray, scale: float,
-                edge_of: np.ndarray, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                edge_of: np.ndarray, merge: np.ndarray, prior: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
     """The fit's covariance (6x6) and what its edges alone say (their information), with
     the edge points' errors as they are: each point's own noise, and a bias its whole
     edge shares (the render's aliasing and the lens's blur along it, an edge's shading),
     which more points along that edge do not average away. Both are measured from the
     fit's own inliers: the noise from the residuals' scatter about their edge's mean,
     the bias from the edges' means beyond what that noise explains (the pose has taken
-    up six of the edges' degrees of freedom). The covariance is then the least-squares
-    one for those errors (the sandwich H^-1 J^T W S W J H^-1, the prior as one more
-    measurement); ``w`` are the fit's weights (Tukey's, over ``scale`` squared),
-    ``edge_of`` each point's edge."""
+    up six of the edges' degrees of freedom). An edge that lies within a few blur widths
+    of another step (``merge``: each point's RMS shift from that, px, see
+    :func:`merge_bias_px`) is biased by its neighbour in a way its residuals do not show
+    (the fit follows the merged step): that bias adds to its edge's, and is not counted
+    again in the shared one. The covariance is then the least-squares one for those
+    errors (the sandwich H^-1 J^T W S W J H^-1, the prior as one more measurement);
+    ``w`` are the fit's weights (Tukey's, over ``scale`` squared), ``edge_of`` each
+    point's edge."""
     tukey = w * scale ** 2
     inlier = tukey > 0
-    Ji, ri, wi, ti = J[inlier], r[inlier], w[inlier], tukey[inlier]
+    Ji, ri, wi, ti, mi = J[inlier], r[inlier], w[inlier], tukey[inlier], merge[inlier]
     _, edge = np.unique(edge_of[inlier], return_inverse=True)
     count = np.bincount(edge, weights=ti)
     mean = np.bincount(edge, weights=ti * ri) / count
+    merged = np.bincount(edge, weights=ti * mi ** 2) / count  # each edge's, px^2
     scatter_dof = float(ti.sum()) - len(count)
     noise = (float(np.sum(ti * (ri - mean[edge]) ** 2)) / scatter_dof if scatter_dof > 0
              else float(np.sum(ti * ri ** 2) / ti.sum()))
     sides = count >= 2  # an end is one point: its bias and its noise are one
-    bias = max(0.0, float(np.sum((mean ** 2 - noise / count)[sides]))
+    bias = max(0.0, float(np.sum((mean ** 2 - noise / count - merged)[sides]))
                / max(int(sides.sum()) - 6, 1))
     pulls = np.zeros((len(count), 6))
     np.add.at(pulls, edge, wi[:, None] * Ji)  # what each edge's shared error does
-    spread = noise * Ji.T @ ((wi ** 2)[:, None] * Ji) + bias * pulls.T @ pulls
+    spread = (noise * Ji.T @ ((wi ** 2)[:, None] * Ji)
+              + pulls.T @ ((bias + merged)[:, None] * pulls))
     edges = Ji.T @ (wi[:, None] * Ji)
     inverse = np.linalg.inv(edges + prior)
     return inverse @ (spread + prior) @ inverse, edges @ np.linalg.pinv(spread) @ edges

@@ -39,9 +39,11 @@ class Boxes:
 
 @dataclass(frozen=True)
 class StereoRig(Pinhole):
-    """A rectified stereo pair: the cameras' intrinsics (px) and their baseline (m)."""
+    """A rectified stereo pair: the cameras' intrinsics (px), their baseline (m) and
+    their lenses' blur (Gaussian sd, px: at most what the depth of field accepts)."""
 
     baseline_m: float = 0.0
+    blur_sd_px: float = 0.0
 
     def project(self, points: np.ndarray, camera: int = 0) -> np.ndarray:
         """Pixels (n, 2) of left-camera points (n, 3) in camera 0 (left) or 1 (right)."""
@@ -107,6 +109,9 @@ class Samples:
     tangent: np.ndarray  # its edge's direction (object frame; at an end, outward)
     end: np.ndarray  # bool: searched along its edge (an end), not across it
     edge: np.ndarray  # which edge (or end) each lies on: points of one share its bias
+    # how far (px) the nearest other step lies across it: an edge nearly parallel to it
+    # (an end: any edge not meeting there); within a few blur widths the two merge
+    apart: np.ndarray
     alone: int = 0  # how many there would be if the other models hid nothing
 
     def moved(self, pose: np.ndarray, rig: StereoRig, camera: int) -> Samples:
@@ -135,6 +140,19 @@ def _facing_edges(pose: np.ndarray, boxes: Boxes, camera: int, rig: StereoRig
     facing = ((normals @ R.T) * sight[:, None, :]).sum(-1) > MIN_FACING  # (m, 2)
     keep = facing.any(axis=1)
     return ends[keep], owner[keep]
+
+
+PARALLEL_COS = np.cos(np.radians(30.0))  # edges this near parallel merge when close
+
+
+def _parallel_distance(points: np.ndarray, directions: np.ndarray, a: np.ndarray,
+                       b: np.ndarray) -> np.ndarray:
+    """Distances (n, k) from 2-D points (n, 2) on edges running along ``directions``
+    (n, 2, unit) to segments a-b (k, 2), infinite for segments not within 30 deg of
+    parallel to the point's edge."""
+    ab = b - a
+    cos = np.abs(directions @ ab.T) / np.maximum(np.linalg.norm(ab, axis=1), 1e-12)[None]
+    return np.where(cos >= PARALLEL_COS, _segment_distance(points, a, b), np.inf)
 
 
 def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -180,9 +198,13 @@ def visible_samples(pose: np.ndarray, boxes: Boxes, rig: StereoRig, camera: int,
         by_others |= _hidden(eye, world, other_pose, other, grow, None)
     inside = ((pixels[:, 0] >= margin_px) & (pixels[:, 0] <= rig.width - 1 - margin_px)
               & (pixels[:, 1] >= margin_px) & (pixels[:, 1] <= rig.height - 1 - margin_px))
-    near = _segment_distance(pixels, rig.project(a, camera), rig.project(b, camera))
+    a2, b2 = rig.project(a, camera), rig.project(b, camera)
+    near = _segment_distance(pixels, a2, b2)
     near[np.arange(len(which)), which] = np.inf  # its own edge
     room = near.min(axis=1)
+    parallel = _parallel_distance(pixels, direction, a2, b2)
+    parallel[np.arange(len(which)), which] = np.inf
+    apart = parallel.min(axis=1)
     alone = int((inside & ~hidden).sum())
     hidden |= by_others
     for other_pose, other in occluders:
@@ -190,20 +212,21 @@ def visible_samples(pose: np.ndarray, boxes: Boxes, rig: StereoRig, camera: int,
         oa = o_ends[:, 0] @ other_pose[:3, :3].T + other_pose[:3, 3]
         ob = o_ends[:, 1] @ other_pose[:3, :3].T + other_pose[:3, 3]
         if len(oa) and (oa[:, 2] > 0).all() and (ob[:, 2] > 0).all():
-            room = np.minimum(room, _segment_distance(pixels, rig.project(oa, camera),
-                                                      rig.project(ob, camera)).min(axis=1))
+            oa2, ob2 = rig.project(oa, camera), rig.project(ob, camera)
+            room = np.minimum(room, _segment_distance(pixels, oa2, ob2).min(axis=1))
+            apart = np.minimum(apart, _parallel_distance(pixels, direction, oa2, ob2).min(axis=1))
     use = inside & ~hidden
     tangent = ends[which, 1] - ends[which, 0]
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     sides = Samples(local[use], pixels[use], image_normals[use], room[use] / 2, tangent[use],
-                     np.zeros(int(use.sum()), bool), which[use], alone)
+                     np.zeros(int(use.sum()), bool), which[use], apart[use], alone)
     return _join(sides, _end_samples(ends, owner, pose, boxes, rig, camera, occluders,
                                      margin_px))
 
 
 def _none() -> Samples:
     return Samples(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0),
-                    np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0, int), 0)
+                    np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0, int), np.zeros(0), 0)
 
 
 def _join(a: Samples, b: Samples) -> Samples:
@@ -211,7 +234,8 @@ def _join(a: Samples, b: Samples) -> Samples:
         return np.concatenate([getattr(a, name), getattr(b, name)])
 
     return Samples(both("points"), both("pixels"), both("normals"), both("reach"),
-                    both("tangent"), both("end"), both("edge"), a.alone + b.alone)
+                    both("tangent"), both("end"), both("edge"), both("apart"),
+                    a.alone + b.alone)
 
 
 def _end_samples(ends: np.ndarray, owner: np.ndarray, pose: np.ndarray, boxes: Boxes,
@@ -250,4 +274,4 @@ def _end_samples(ends: np.ndarray, owner: np.ndarray, pose: np.ndarray, boxes: B
     # each end is its own edge, numbered after the edges (one per end of each)
     return Samples(points[use], pixels[use], out[use], np.minimum(room[use], length[use]) / 2,
                     outward[use], np.ones(int(use.sum()), bool),
-                    len(ends) + np.flatnonzero(use), alone)
+                    len(ends) + np.flatnonzero(use), room[use], alone)

@@ -5,8 +5,11 @@ object's colour region (calibration/edge_fit.py uses both)."""
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from .edge_model import Boxes, Samples, StereoRig
 
@@ -49,6 +52,58 @@ def search_edges(image: np.ndarray, pixels: np.ndarray, normals: np.ndarray,
         shift = np.where(curvature < 0, 0.5 * (y0 - y2) / curvature, 0.0)
     result = at[best] + np.clip(shift, -0.5, 0.5)
     return np.where(found, result, np.nan)
+
+
+# The synthetic profiles :func:`merge_bias_px` measures the search on: neighbour
+# distances (px) and the lens's blur (Gaussian sd, px) tabulated, and the neighbour's
+# colour step relative to the edge's own (either sign) and the edge's sub-pixel phases
+# over which the bias is averaged
+MERGE_DISTANCES_PX = np.arange(0.0, 8.01, 0.25)
+MERGE_BLURS_PX = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0])
+MERGE_CONTRASTS = np.array([-1.0, -0.75, -0.5, -0.25, 0.25, 0.5, 0.75, 1.0])
+MERGE_PHASES = np.array([0.0, 0.25, 0.5, 0.75])
+
+
+@functools.cache
+def _merge_table() -> np.ndarray:
+    """RMS offset (px) of the step :func:`search_edges` finds from the true one, when
+    another step lies a given distance away (searched at most halfway to it), per
+    (blur, distance) of the tabulated ones."""
+    sub, n, own = 32, 48, 24.0  # samples per pixel, profile length (px), the edge (px)
+    table = np.zeros((len(MERGE_BLURS_PX), len(MERGE_DISTANCES_PX)))
+    x = (np.arange(n * sub) + 0.5) / sub
+    d, c, phase = (a.ravel() for a in np.meshgrid(MERGE_DISTANCES_PX, MERGE_CONTRASTS,
+                                                  MERGE_PHASES, indexing="ij"))
+    edge = own + phase
+    neighbour = np.where(d > 0, c, 0.0)[:, None] * (x > (edge + d)[:, None])
+    sharp = 100.0 * ((x > edge[:, None]) + neighbour)
+    limits = np.where(d > 0, d / 2, np.inf)
+    for i, blur in enumerate(MERGE_BLURS_PX):
+        fine = gaussian_filter1d(sharp, blur * sub, axis=1, mode="nearest") if blur > 0 else sharp
+        rows = fine.reshape(len(d), n, sub).mean(axis=2)  # each pixel's area
+        image = np.repeat(rows.astype(np.float32)[:, :, None], 3, axis=2)
+        pixels = np.column_stack([edge - 0.5, np.arange(len(d))])
+        found = search_edges(image, pixels, np.tile([1.0, 0.0], (len(d), 1)), 3, limits)
+        shift = np.where(np.isfinite(found), found, np.minimum(limits, 3.0))
+        per_distance = shift.reshape(len(MERGE_DISTANCES_PX), -1)
+        table[i] = np.sqrt(np.mean(per_distance ** 2, axis=1))
+    return table
+
+
+def merge_bias_px(distance_px: np.ndarray, blur_sd_px: float) -> np.ndarray:
+    """How far (px, RMS) an edge's found step may lie from its true place because
+    another step lies ``distance_px`` away across it: blurred (the lens's ``blur_sd_px``,
+    the pixels' area, the search's central difference), two steps closer than a few
+    blur widths merge into one, found between or beyond them. Measured on
+    :func:`search_edges` itself with synthetic steps; 0 for isolated edges."""
+    table = _merge_table()
+    blur = float(np.clip(blur_sd_px, MERGE_BLURS_PX[0], MERGE_BLURS_PX[-1]))
+    row = np.array([np.interp(blur, MERGE_BLURS_PX, table[:, j])
+                    for j in range(len(MERGE_DISTANCES_PX))])
+    # less what the search errs by on an isolated step: that is each point's own noise
+    excess = np.sqrt(np.maximum(row ** 2 - row[-1] ** 2, 0.0))
+    d = np.asarray(distance_px, float)
+    return np.where(np.isfinite(d), np.interp(d, MERGE_DISTANCES_PX, excess, right=0.0), 0.0)
 
 
 def search_reach_px(pose: np.ndarray, boxes: Boxes, rig: StereoRig, sd_m: float,

@@ -132,7 +132,7 @@ class InsertionTask(TaskImages):
         m = scene.model
         super().__init__(data, renderer, pinhole, lens, m.geom("panel/panel").id,
                          StereoRig(pinhole.width, pinhole.height, pinhole.fx, pinhole.fy,
-                                   pinhole.cx, pinhole.cy, baseline_m))
+                                   pinhole.cx, pinhole.cy, baseline_m, lens.blur_sd_px))
         self.world, self.baseline_m, self.grid, self.cfg = world, baseline_m, grid, cfg
         self.noise_scale = max(1.0, REFERENCE_FX_PX / pinhole.fx)
         self.rng, self.recorder = rng, recorder

@@ -31,6 +31,11 @@ class Lens:
     def focus_m(self) -> float:
         return 2.0 / (1.0 / self.near_m + 1.0 / self.far_m)
 
+    @property
+    def blur_sd_px(self) -> float:
+        """The Gaussian blur's sd (px) at the depth of field's limits: its largest within."""
+        return self.coc_px / (2 * np.sqrt(2))
+
     def blur_px(self, depth: np.ndarray) -> np.ndarray:
         """Blur-circle diameter (px) at z-depths (m); 0 where the depth is not finite."""
         z = np.where(np.isfinite(depth) & (depth > 0), depth, self.focus_m)
