@@ -95,7 +95,7 @@ def scene_rows(spec: Any, top: int, world_kind: str) -> list[dict[str, Any]]:
     """One scene: map it, rank the first robot's candidates, plan the top ``top`` both
     ways, ours in the planner's world ``world_kind`` (``search.planner_world``); one
     record per candidate."""
-    scenario, achieved = trial_scenario(spec)
+    scenario, clutter = trial_scenario(spec)
     world = build_world(scenario, Timer())
     with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:
         explore(world, renderer)
@@ -134,7 +134,7 @@ def scene_rows(spec: Any, top: int, world_kind: str) -> list[dict[str, Any]]:
         peer = ik_as_path(world.scene, world.belief, robot, target.position, position,
                           q.clearance_m, margin)
         peer_s = time.perf_counter() - t0
-        rows.append({"density": spec.density, "achieved": achieved, "trial": spec.trial,
+        rows.append({"density": spec.density, "achieved": clutter.density, "trial": spec.trial,
                      "distance_m": float(np.linalg.norm(position - target.position)),
                      "ours": plan.reason is None, "why": plan.reason, "checks": plan.checks,
                      "ours_s": ours_s, "peer": peer, "peer_s": peer_s})

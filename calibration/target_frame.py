@@ -5,9 +5,9 @@ Each placed camera looks for every target where its believed pose (the corrected
 else the commanded one) puts it: the hole is found in the left and in the right image
 (LoG, then template matching, calibration/targets.py), the disparity of the two centres
 gives its depth, and the believed pose carries the point into the world. The common
-frame has its origin at the primary target (the mean of the robots' sightings of it),
-its z axis along the work-piece normal (from its CAD model) and its x axis toward the
-secondary target, when one was seen.
+frame is the work-piece's CAD frame moved onto every target located (secondary ones
+weighed by their ST_error), with its origin where that puts the primary target, its z
+axis along the work-piece normal (from its CAD model).
 """
 
 from __future__ import annotations
@@ -125,13 +125,37 @@ def sight(robot: str, left: np.ndarray, right: np.ndarray, target: Target,
                     T[:3, :3] @ in_cam + T[:3, 3])
 
 
+def _nominal_x(z: np.ndarray) -> np.ndarray:
+    """The frame's x axis in the CAD model: the world's x turned into the plate."""
+    x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.9 else np.cross([1.0, 0.0, 0.0], z)
+    return x / np.linalg.norm(x)
+
+
+def _turn(z: np.ndarray, angle: float) -> np.ndarray:
+    """The rotation (3x3) by ``angle`` rad about the unit axis ``z``."""
+    k = np.array([[0, -z[2], z[1]], [z[2], 0, -z[0]], [-z[1], z[0], 0]])
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+
+
 def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict[str, Any]:
     """The target frame from every robot's sightings, and each target's measured place
-    against the truth: the mean over robots weighted by the inverse variance of each
+    against the truth.
+
+    Each target's place is the mean over robots weighted by the inverse variance of each
     sighting (``sd_m``), so that a camera whose pose could not be corrected counts as
-    little as its uncertainty says."""
+    little as its uncertainty says. The frame is the work-piece's CAD frame moved onto
+    every target located: the turn about the plate's normal and the shift that carry the
+    targets' CAD places onto their measured ones (weighted least squares; a secondary
+    target weighs as its place's variance plus its ST_error squared, eq. 4: its relation
+    to the primary is known only that well). One target located gives the shift alone
+    (the turn stays unmeasured); the primary need not be among them: secondary targets
+    stand in for it. The frame's origin is where it puts the primary target, its z axis
+    the plate's normal (CAD), its x axis the CAD frame's turned; ``from`` names the
+    targets it rests on, ``sd_m`` is its shift's standard deviation (m, per axis) at
+    ``pivot`` (their weighted centre), ``yaw_sd_deg`` its turn's (None: unmeasured)."""
     out: dict[str, Any] = {"targets": {}}
     measured: dict[str, np.ndarray] = {}
+    variance: dict[str, float] = {}
     for t in targets:
         mine = [s for s in sightings if s.target == t.name]
         if not mine:
@@ -140,6 +164,7 @@ def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict
         weights = 1.0 / np.maximum([s.sd_m for s in mine], 1e-6) ** 2
         mean = weights @ seen / weights.sum()
         measured[t.name] = mean
+        variance[t.name] = 1.0 / float(weights.sum())
         out["targets"][t.name] = {
             "robots": [s.robot for s in mine],
             "poses": [s.pose_status for s in mine],
@@ -149,20 +174,34 @@ def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict
             "spread_m": round(float(max(np.linalg.norm(p - mean) for p in seen)), 6),
             "error_m": round(float(np.linalg.norm(mean - t.position)), 6)}
     primary = next(t for t in targets if t.role == "primary")
-    if primary.name not in measured:
+    used = [t for t in targets if t.name in measured]
+    if not used:
         out["frame"] = None
         return out
     z = primary.normal / np.linalg.norm(primary.normal)
-    toward = next((measured[t.name] - measured[primary.name] for t in targets
-                   if t.role == "secondary" and t.name in measured), None)
-    if toward is None or np.linalg.norm(toward - (toward @ z) * z) < 1e-6:
-        x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.9 else np.cross([1.0, 0.0, 0.0], z)
-    else:
-        x = toward - (toward @ z) * z
-    x = x / np.linalg.norm(x)
-    out["frame"] = {"origin": measured[primary.name].round(5).tolist(),
-                    "x_axis": x.round(6).tolist(), "z_axis": z.round(6).tolist(),
-                    "y_axis": np.cross(z, x).round(6).tolist()}
+    w = np.array([1.0 / (variance[t.name] + (t.st_error if t.role == "secondary" else 0.0) ** 2)
+                  for t in used])
+    nominal = np.array([t.position for t in used])
+    found = np.array([measured[t.name] for t in used])
+    p_mid, q_mid = w @ nominal / w.sum(), w @ found / w.sum()
+    a, b = nominal - p_mid, found - q_mid
+    a_plane = a - np.outer(a @ z, z)
+    lever = float(w @ (a_plane ** 2).sum(axis=1))
+    yaw, yaw_sd = 0.0, None
+    if len(used) > 1 and lever > 1e-12:
+        # the turn about z that best carries the CAD offsets onto the measured ones
+        yaw = math.atan2(float(w @ (np.cross(a_plane, b) @ z)), float(w @ (a_plane * b).sum(1)))
+        yaw_sd = math.sqrt(1.0 / lever)  # rad: each place's variance over its lever arm
+    R = _turn(z, yaw)
+    shift = q_mid - R @ p_mid
+    origin = R @ primary.position + shift
+    out["frame"] = {"origin": origin.round(5).tolist(),
+                    "x_axis": (R @ _nominal_x(z)).round(6).tolist(), "z_axis": z.round(6).tolist(),
+                    "y_axis": np.cross(z, R @ _nominal_x(z)).round(6).tolist(),
+                    "from": [t.name for t in used], "primary_seen": primary.name in measured,
+                    "pivot": q_mid.round(5).tolist(),
+                    "sd_m": round(float(np.sqrt(1.0 / w.sum())), 6),
+                    "yaw_sd_deg": None if yaw_sd is None else round(math.degrees(yaw_sd), 4)}
     return out
 
 
@@ -176,17 +215,16 @@ def frame_matrix(frame: dict[str, Any]) -> np.ndarray:
 
 def frame_motion(targets: tuple[Target, ...], measured: dict[str, Any]) -> np.ndarray:
     """The rigid motion (4x4, world) that carries the work-piece's CAD model (nominal) to
-    where the target frame the robots measured puts it; identity when the primary target
-    was not measured. The nominal frame is built from the targets that were measured, as
-    the measured one was (without a secondary target both take their x axis the same
-    way, and the work-piece's yaw stays unmeasured rather than turned by the angle to an
-    unseen target)."""
-    if measured.get("frame") is None:  # the primary unmeasured: the nominal place
+    where the target frame the robots measured puts it; identity when no target was
+    measured."""
+    if measured.get("frame") is None:  # nothing located: the nominal place
         return np.eye(4)
-    seen = tuple(t for t in targets if t.name in measured["targets"])
-    nominal = common_frame([Sighting("cad", t.name, (0.0, 0.0), 0.0, 1.0, t.position)
-                            for t in seen], seen)["frame"]
-    return frame_matrix(measured["frame"]) @ np.linalg.inv(frame_matrix(nominal))
+    primary = next(t for t in targets if t.role == "primary")
+    z = primary.normal / np.linalg.norm(primary.normal)
+    nominal = np.eye(4)
+    nominal[:3, 0], nominal[:3, 2] = _nominal_x(z), z
+    nominal[:3, 1], nominal[:3, 3] = np.cross(z, _nominal_x(z)), primary.position
+    return frame_matrix(measured["frame"]) @ np.linalg.inv(nominal)
 
 
 def in_measured_frame(point: np.ndarray, targets: tuple[Target, ...],

@@ -80,6 +80,8 @@ def trial_record(sweep_methods: list[dict[str, Any]], density_index: int, trial:
     return {
         "density_index": density_index, "trial": trial, "seed": 1000 + trial,
         "density": density, "achieved_density": density, "obstacles": 3,
+        # trial k blocks each band by the density plus k points (k = 0, 1): mean + 0.5
+        "blocked_by_elevation": [density + trial / 100] * 8,
         "timings_s": {"total": 1.0},
         "methods": [{"method": m["name"], "placement": m["placement"],
                      "secondary": m["secondary"], "final_displacement_m": 0.002,
@@ -117,6 +119,10 @@ def test_report_works_without_gl(results_db, tmp_path):
     table = done.stdout
     assert "Optimal (rating function)" in table and "Biased random" in table, table
     assert "100 [" in table and "50 [" in table, table  # 2 of 2 and 1 of 2
+    # each density's blocked share per elevation band, the mean of its two trials
+    assert "| 10-20 deg | 20-30 deg |" in table
+    for d in load_sweep(SCENARIO_DIR / "smoke.toml").config.densities:
+        assert f"| {100 * d:g} % | {100 * d + 0.5:.1f} |" in table, table
     for name in ("smoke.md", "smoke.csv", "smoke.png", "smoke-orderings.md",
                  "smoke-orderings.csv"):
         assert (out / name).stat().st_size > 0

@@ -157,6 +157,21 @@ def test_a_database_of_another_sweep_is_refused(tiny, reference, tmp_path, capsy
     assert "different sweep" in capsys.readouterr().err
 
 
+def test_a_database_of_scenes_another_generator_made_is_not_resumed(tmp_path):
+    """The same sweep, its trials made by the scene generator before issue 21 (its
+    description without ``scenes``): refused, since the same seeds now make other
+    scenes; with today's generator named, taken."""
+    sweep = load_sweep(SCENARIO_DIR / "smoke.toml")
+    old = {k: v for k, v in sweep.describe().items() if k != "scenes"}
+    with Results(tmp_path / "old.sqlite") as r:
+        r.start(old, resume=False)
+        refused = r.refusal(sweep.describe(), resume=True)
+        assert refused is not None and "different sweep" in str(refused)
+    with Results(tmp_path / "new.sqlite") as r:
+        r.start(sweep.describe(), resume=False)
+        assert r.refusal(sweep.describe(), resume=True) is None
+
+
 def test_wilson_interval_matches_hand_calculation():
     # 5 of 10 at z = 1.96: centre 0.5, half-width 1.96/(1+0.38416) * sqrt(0.025 + 0.0096040)
     lo, hi = wilson(5, 10)
@@ -189,7 +204,32 @@ def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
     assert {(c.method, c.density, c.tolerance): [c.trials, c.successes] for c in table} == count
     out = report(db, tmp_path / "out")
     text = out["markdown"]
-    assert text == markdown(table) and text == (tmp_path / "out" / "report.md").read_text()
+    # the table, then each density's blocked share per elevation band, by hand
+    bands: dict[float, list[list[float]]] = {}
+    with sqlite3.connect(db) as c:
+        for density, record in c.execute("SELECT density, record FROM trials"):
+            bands.setdefault(density, []).append(json.loads(record)["blocked_by_elevation"])
+    assert text.startswith(markdown(table) + "\n")
+    for density, rows in bands.items():
+        means = [sum(column) / len(rows) for column in zip(*rows, strict=True)]
+        assert ("| " + " | ".join([f"{100 * density:g} %"] + [f"{100 * v:.1f}" for v in means])
+                + " |") in text
+    # the tasks that ended at the step limit, by hand
+    limit: dict[tuple[str, float], list[int]] = {}
+    with sqlite3.connect(db) as c:
+        for density, record in c.execute("SELECT density, record FROM trials"):
+            for m in json.loads(record)["methods"]:
+                if m["steps"] > 0:
+                    n = limit.setdefault((m["method"], density), [0, 0])
+                    n[0] += m["stopped_by"] == "max_steps"
+                    n[1] += 1
+    line = next(x for x in text.splitlines() if x.startswith("Tasks that ended at the step"))
+    assert line.endswith(": " + "; ".join(
+        f"{method} " + ", ".join(f"{at} of {n} at {100 * d:g} %"
+                                 for (other, d), (at, n) in sorted(limit.items())
+                                 if other == method)
+        for method in sorted({m for m, _ in limit})))
+    assert text == (tmp_path / "out" / "report.md").read_text()
     assert "(100)" in text  # the paper's optimal at 5 %, 20 % tolerance, with secondary
     csv_lines = (tmp_path / "out" / "report.csv").read_text().splitlines()
     assert len(csv_lines) == 1 + len(count)

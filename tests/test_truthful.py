@@ -4,8 +4,10 @@ frame weighs each sighting by how well its camera's pose is known."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
+import tomllib
 
 import cv2
 import numpy as np
@@ -20,8 +22,9 @@ from calibration.target_frame import (
 )
 from calibration.targets import Target
 from mapping import Pinhole
-from sim.config.scenario import load_scenario, parse_scenario
+from sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from sim.stages.episode import Episode
+from sim.stages.world import misplace_secondaries
 
 
 def _targets() -> tuple[Target, ...]:
@@ -70,7 +73,7 @@ def test_a_target_nobody_located_is_not_a_success():
     task = summary["task"]
     assert task["attempted"] is False and task["target_frame"]["measured"] is False
     assert task["success"] == {"0.2": False, "0.1": False, "0.01": False}
-    assert "primary target" in task["stopped_by"] and task["steps"] == 0
+    assert "located a target" in task["stopped_by"] and task["steps"] == 0
 
 
 @pytest.mark.slow
@@ -147,6 +150,96 @@ def test_a_target_is_claimed_only_where_the_camera_can_tell_it_apart():
     assert told is not None and np.allclose(told.pixel, exact.pixel)
 
 
+def _moved(point: np.ndarray, pivot: np.ndarray, yaw_deg: float, shift: np.ndarray
+           ) -> np.ndarray:
+    """``point`` turned by ``yaw_deg`` about the vertical through ``pivot``, then shifted."""
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return R @ (point - pivot) + pivot + shift
+
+
+def test_secondary_targets_stand_in_for_a_hidden_primary_by_hand():
+    """Issue 21: the work-piece turned 3 deg about its centre and shifted (4, -3) mm. Two
+    secondary targets seen where they truly are, the primary hidden: the frame puts the
+    primary (and the slot) where they truly are, rests on the two secondaries, and
+    measures the turn (its sd 1 / sqrt(sum w |a|^2) rad, each weighing 1 / (sd^2 +
+    ST_error^2)). One secondary alone gives the shift at that target (the turn unknown):
+    the primary then moves with it, uncertain by sqrt(sd^2 + ST_error^2)."""
+    base = _targets()
+    primary = next(t for t in base if t.role == "primary")
+    second = next(t for t in base if t.role == "secondary")
+    third = dataclasses.replace(second, name="third", position=second.position
+                                + np.array([-0.3, -0.15, 0.0]), st_error=0.002)
+    targets = (*base, third)
+    centre, shift = np.array([0.0, 0.0, 0.52]), np.array([0.004, -0.003, 0.0])
+    true = {t.name: _moved(t.position, centre, 3.0, shift) for t in targets}
+    seen = [Sighting("r1", t.name, (0.0, 0.0), 10.0, 1.0, true[t.name], 0.001)
+            for t in (second, third)]
+    measured = common_frame(seen, targets)
+    frame = measured["frame"]
+    assert frame["from"] == [second.name, "third"] and frame["primary_seen"] is False
+    assert np.allclose(frame["origin"], true[primary.name], atol=1e-5)
+    slot = primary.position + np.array([-0.2, 0.0, 0.0])
+    assert np.allclose(in_measured_frame(slot, targets, measured),
+                       _moved(slot, centre, 3.0, shift), atol=1e-5)
+    w = np.array([1 / (0.001 ** 2 + second.st_error ** 2), 1 / (0.001 ** 2 + 0.002 ** 2)])
+    middle = (w[0] * second.position + w[1] * third.position) / w.sum()
+    lever = sum(wk * np.sum((t.position - middle)[:2] ** 2)
+                for wk, t in zip(w, (second, third), strict=True))
+    assert frame["yaw_sd_deg"] == pytest.approx(math.degrees(1 / math.sqrt(lever)), abs=1e-4)
+    assert frame["sd_m"] == pytest.approx(1 / math.sqrt(w.sum()), abs=1e-6)
+    alone = common_frame(seen[:1], targets)["frame"]
+    assert alone["from"] == [second.name] and alone["yaw_sd_deg"] is None
+    assert np.allclose(alone["origin"], primary.position + true[second.name] - second.position,
+                       atol=1e-5)
+    assert alone["sd_m"] == pytest.approx(math.hypot(0.001, second.st_error), abs=1e-6)
+
+
+def test_the_frame_weighs_each_target_by_its_relation_to_the_primary():
+    """The primary seen 2 mm off in x, the secondary (ST_error 1 mm) 2 mm off the other
+    way, both sighted to 1 mm: the shift at their weighted centre is their mean weighted
+    1 / 1e-6 : 1 / 2e-6, (2 - 2 / 2) / 1.5 mm = 0.667 mm in x, as computed by hand."""
+    targets = _targets()
+    primary = next(t for t in targets if t.role == "primary")
+    second = next(t for t in targets if t.role == "secondary")
+    assert second.st_error == pytest.approx(0.001)
+    seen = [Sighting("r1", primary.name, (0.0, 0.0), 10.0, 1.0,
+                     primary.position + [0.002, 0.0, 0.0], 0.001),
+            Sighting("r1", second.name, (0.0, 0.0), 10.0, 1.0,
+                     second.position + [-0.002, 0.0, 0.0], 0.001)]
+    frame = common_frame(seen, targets)["frame"]
+    w = np.array([1 / 1e-6, 1 / 2e-6])
+    pivot = (w[0] * primary.position + w[1] * second.position) / w.sum()
+    assert np.allclose(frame["pivot"], pivot + [(w[0] * 0.002 - w[1] * 0.002) / w.sum(), 0, 0],
+                       atol=1e-5)
+    assert frame["primary_seen"] is True and frame["sd_m"] == pytest.approx(
+        1 / math.sqrt(w.sum()), abs=1e-6)
+
+
+def test_each_secondary_target_is_truly_off_its_relation_by_its_st_error():
+    """Issue 21: in the simulated world the secondary hole stands off its CAD place by a
+    draw of its ST_error (1 mm per axis here), the primary where the CAD puts it; over
+    400 draws the offsets' standard deviation is ST_error within 10 % and their mean
+    within 4 standard errors of 0. The world records each draw."""
+    world = Episode(parse_scenario({"robots": {"count": 1}})).world
+    second = next(t for t in world.scene.targets if t.role == "secondary")
+    primary = next(t for t in world.scene.targets if t.role == "primary")
+    for t in (second, primary):
+        moved = world.model.geom_pos[world.model.geom(t.geom).id]
+        nominal = world.nominal.geom_pos[world.nominal.geom(t.geom).id]
+        expected = world.secondary_errors.get(t.name, [0.0, 0.0])
+        assert np.allclose(moved[:2] - nominal[:2], expected, atol=1e-6)
+        assert moved[2] == nominal[2]
+    rng = np.random.default_rng(11)
+    draws = []
+    for _ in range(400):
+        model = copy.deepcopy(world.nominal)
+        draws.append(misplace_secondaries(world.scene, model, rng)[second.name])
+    draws = np.array(draws)
+    assert np.std(draws, axis=0) == pytest.approx([0.001, 0.001], rel=0.1)
+    assert (np.abs(draws.mean(axis=0)) < 4 * 0.001 / math.sqrt(400)).all()
+
+
 def test_without_a_secondary_sighting_the_slot_moves_with_the_primary_only():
     """The primary seen 1 cm off its nominal place and no secondary: the slot moves by
     that 1 cm and does not turn (before, the measured frame took its x axis from the
@@ -165,3 +258,33 @@ def test_without_a_secondary_sighting_the_slot_moves_with_the_primary_only():
     assert np.allclose(in_measured_frame(point, targets, common_frame(both, targets)),
                        point + shift, atol=1e-9)
     assert np.allclose(in_measured_frame(point, targets, common_frame([], targets)), point)
+
+
+def _capped(secondary: bool) -> dict:
+    """The default scenario with a box lying on the plate over the primary hole (it hides
+    the hole from every direction, not the slot 0.2 m away nor the secondary hole), with
+    or without the secondary target."""
+    raw = tomllib.loads((SCENARIO_DIR / "default.toml").read_text())
+    raw["obstacles"] = [*raw.get("obstacles", []), {
+        "shape": "box", "position": [0.05, 0.0, 0.535], "size": [0.035, 0.035, 0.016]}]
+    if not secondary:
+        raw["workpiece"]["targets"] = [t for t in raw["workpiece"]["targets"]
+                                       if t["role"] == "primary"]
+    return raw
+
+
+@pytest.mark.slow
+def test_a_secondary_target_stands_in_for_a_hidden_primary():
+    """Issue 21: the primary hole covered, the secondary in view. With the secondary
+    target the frame rests on it alone, the task is attempted and meets the easy
+    tolerance (measured: 4.7 mm, 20 % and 10 % met); without it no camera can be placed
+    for a target, no frame is measured and the task fails every tolerance."""
+    summary, _ = Episode(parse_scenario(_capped(True))).run()
+    frame = summary["target_frame"]["frame"]
+    assert frame["from"] == ["secondary"] and frame["primary_seen"] is False
+    assert summary["task"]["attempted"] is True
+    assert summary["task"]["success"]["0.2"] is True
+    without, _ = Episode(parse_scenario(_capped(False))).run()
+    assert without["target_frame"]["frame"] is None
+    assert without["task"]["attempted"] is False
+    assert not any(without["task"]["success"].values())

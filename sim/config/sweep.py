@@ -93,8 +93,14 @@ class Sweep(Checked):
     def describe(self) -> dict[str, Any]:
         """What the results depend on (stored with them, checked on resume)."""
         return {"sweep": dataclasses.asdict(self.config),
-                "scenario": dataclasses.asdict(dataclasses.replace(self.scenario, source=""))}
+                "scenario": dataclasses.asdict(dataclasses.replace(self.scenario, source="")),
+                "scenes": SCENE_GENERATOR}
 
+
+# Which scenes a sweep's seeds make (sim/experiments/generate.py): a new name whenever
+# the generator makes other scenes from the same seeds, so that a database of the old
+# ones is not resumed with new ones
+SCENE_GENERATOR = "every elevation band blocked in proportion (issue 21)"
 
 # Scenario keys a sweep sets for each trial itself, and why
 GENERATED = {"obstacles": "each trial generates its own at the sweep's densities",

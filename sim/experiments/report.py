@@ -5,6 +5,7 @@ next to the paper's numbers; as Markdown, CSV and a PNG chart."""
 from __future__ import annotations
 
 import csv
+import json
 import math
 from collections import defaultdict
 from collections.abc import Iterable
@@ -103,6 +104,55 @@ def cells(db: str | Path) -> list[Cell]:
     if not out:
         raise ResultsError(results.path, "a results database without a finished trial", wanted)
     return sorted(out, key=lambda c: (-c.tolerance, order.get(c.method, 99), c.density))
+
+
+def elevation_bands(db: str | Path) -> dict[float, list[float]]:
+    """Each requested density's mean blocked share per 10 deg elevation band (10-20 deg
+    first), over the trials that recorded it (sweeps before issue 21 did not)."""
+    by_density: dict[float, list[list[float]]] = defaultdict(list)
+    with Results(db, readonly=True) as results:
+        for density, record in results.db.execute("SELECT density, record FROM trials"):
+            shares = json.loads(record).get("blocked_by_elevation")
+            if shares:
+                by_density[density].append(shares)
+    return {d: [sum(col) / len(col) for col in zip(*rows, strict=True)]
+            for d, rows in sorted(by_density.items())}
+
+
+def step_limit(db: str | Path) -> dict[tuple[str, float], tuple[int, int]]:
+    """Per method and requested density: how many attempted tasks ended at the sweep's
+    step limit (``max_steps``), of how many attempted."""
+    with Results(db, readonly=True) as results:
+        rows = results.db.execute(
+            "SELECT o.method, t.density, SUM(o.stopped_by = 'max_steps'), COUNT(*) "
+            "FROM outcomes o JOIN trials t USING (density_index, trial) "
+            "WHERE o.steps > 0 GROUP BY o.method, t.density ORDER BY o.method, t.density")
+        return {(m, d): (int(at), int(n)) for m, d, at, n in rows}
+
+
+def step_limit_markdown(limits: dict[tuple[str, float], tuple[int, int]]) -> str:
+    """The tasks that ended at the step limit, per method and density (the step budget
+    must not be what limits success)."""
+    if not limits:
+        return ""
+    by_method: dict[str, list[str]] = defaultdict(list)
+    for (method, density), (at, n) in limits.items():
+        by_method[method].append(f"{at} of {n} at {100 * density:g} %")
+    return ("Tasks that ended at the step limit (`task.max_steps`), of those attempted: "
+            + "; ".join(f"{m} {', '.join(v)}" for m, v in by_method.items()) + "\n")
+
+
+def bands_markdown(bands: dict[float, list[float]]) -> str:
+    """The blocked share per elevation band, a row per requested density."""
+    if not bands:
+        return ""
+    count = len(next(iter(bands.values())))
+    head = ["Density"] + [f"{10 + 10 * k}-{20 + 10 * k} deg" for k in range(count)]
+    lines = ["Blocked share (%) of each elevation band above the primary target, mean over "
+             "the trials", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join([f"{100 * d:g} %"] + [f"{100 * v:.1f}" for v in shares]) + " |"
+              for d, shares in bands.items()]
+    return "\n".join(lines) + "\n"
 
 
 def percent(successes: int, trials: int) -> str:
@@ -219,6 +269,9 @@ def report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:
     folder = Path(out) if out is not None else db.parent
     folder.mkdir(parents=True, exist_ok=True)
     text = markdown(table)
+    for extra in (step_limit_markdown(step_limit(db)), bands_markdown(elevation_bands(db))):
+        if extra:
+            text += "\n" + extra
     ordered = claims.markdown(tested)
     paths = {ext: folder / f"{db.stem}.{ext}" for ext in ("md", "csv", "png")}
     paths |= {f"orderings {ext}": folder / f"{db.stem}-orderings.{ext}" for ext in ("md", "csv")}

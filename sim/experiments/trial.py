@@ -29,14 +29,13 @@ import numpy as np
 
 from sim.config.scenario import Scenario
 from sim.config.sweep import MethodConfig
-from sim.experiments.generate import generate, keep_outs
+from sim.experiments.generate import Clutter, scenario_clutter
 from sim.stages.episode import place_look_do
 from sim.stages.exploration import explore
 from sim.stages.rating_problem import RatingProblem
 from sim.stages.timer import Timer
 from sim.stages.world import build_world
 from sim.world.render import Renderer
-from sim.world.scene import build_scene
 
 
 @dataclass(frozen=True)
@@ -52,20 +51,12 @@ class TrialSpec:
 
 
 @functools.lru_cache(maxsize=4)
-def _primary(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
-    """The primary target's position and normal in a scenario's scene (m)."""
-    target = build_scene(dataclasses.replace(scenario, obstacles=())).primary
-    return target.position, target.normal
-
-
-def trial_scenario(spec: TrialSpec) -> tuple[Scenario, float]:
+def trial_scenario(spec: TrialSpec) -> tuple[Scenario, Clutter]:
     """The trial's scenario, with obstacles generated at the requested density, and the
-    density achieved."""
+    clutter's record (density achieved, each elevation band's share)."""
     s = spec.scenario
-    position, normal = _primary(s)
-    obstacles, achieved = generate(spec.density, position, normal, s.camera.far_m,
-                                   keep_outs(s), np.random.default_rng([spec.seed, 0]))
-    return dataclasses.replace(s, obstacles=obstacles, seed=spec.seed), achieved
+    clutter = scenario_clutter(s, spec.density, np.random.default_rng([spec.seed, 0]))
+    return dataclasses.replace(s, obstacles=clutter.obstacles, seed=spec.seed), clutter
 
 
 def method_rng(seed: int, method: MethodConfig) -> np.random.Generator:
@@ -102,7 +93,7 @@ def _outcome(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str
 def run_trial(spec: TrialSpec) -> dict[str, Any]:
     """Generate, map once, run every method; the trial's record."""
     start = time.perf_counter()
-    scenario, achieved = trial_scenario(spec)
+    scenario, clutter = trial_scenario(spec)
     timer = Timer()
     world = build_world(scenario, timer)
     scene = world.scene
@@ -125,9 +116,12 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
     timings["total"] = round(time.perf_counter() - start, 3)
     return {
         "density_index": spec.density_index, "trial": spec.trial, "seed": spec.seed,
-        "density": spec.density, "achieved_density": round(achieved, 6),
+        "density": spec.density, "achieved_density": round(clutter.density, 6),
+        # the blocked share of each 10 deg elevation band, 10-20 deg first
+        "blocked_by_elevation": clutter.band_shares.round(4).tolist(),
         "obstacles": len(scenario.obstacles),
         "workpiece_error": world.workpiece_error.round(6).tolist(),
+        "secondary_errors": world.secondary_errors,
         "mapping": {"views": mapping.views_total,
                     "region_entropy_bits": mapping.region_entropy_history_bits[-1],
                     "region_known_fraction": mapping.region_known_fraction},

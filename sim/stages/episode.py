@@ -87,7 +87,8 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
     if s.task.enabled:
         with world.timer("task"):
             done = run_task(world, renderer, placements, frame,
-                            seen.located(world.scene.primary.name), targets, method,
+                            seen.located(*(frame["frame"] or {}).get("from", [])), targets,
+                            method,
                             corrector, prior_sd)
             task = done.summary()
         placements = done.placements

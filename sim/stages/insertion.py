@@ -1,7 +1,8 @@
 """Stage 4 over the world: the insertion task run with the placed cameras
 (sim/stages/task.py), toward the slot where the measured target frame puts it; a camera
 that keeps losing the panel is placed again on the updated map. Not attempted when no
-camera located the primary target: there is no slot to go to."""
+camera located a target (the primary, or a secondary one standing in for it): there is
+no slot to go to."""
 
 from __future__ import annotations
 
@@ -48,8 +49,8 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
              method: str, corrector: PoseCorrector | None, prior_sd: tuple[float, float]
              ) -> Insertion:
     """Guide the panel into its slot with the robots' current placements; ``frame`` is
-    the target frame their sightings of ``targets`` measured (``frame_robots`` those of
-    the primary target). A re-placement searches the map as the task left it, with the
+    the target frame their sightings of ``targets`` measured (``frame_robots`` those whose
+    sightings it rests on). A re-placement searches the map as the task left it, with the
     placement ``method``; ``prior_sd`` is an uncorrected pose's standard deviation
     (m, deg)."""
     s = world.scenario
@@ -65,7 +66,7 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
         return Insertion(result, {name: tuple(h) for name, h in histories.items()})
 
     if frame.get("frame") is None:
-        return done(task.not_attempted(cameras, "no camera located the primary target"))
+        return done(task.not_attempted(cameras, "no camera located a target"))
     slot = slot_belief(world, targets, frame)
 
     # the site watched with the panel as the one occluder that moves; the robots stand

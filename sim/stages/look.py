@@ -45,9 +45,9 @@ class Look:
     def summary(self, robot: str) -> dict[str, Any]:
         return self.rows[robot]
 
-    def located(self, target: str) -> list[str]:
-        """The robots whose sightings located ``target``, by name, sorted."""
-        return sorted({s.robot for s in self.sightings if s.target == target})
+    def located(self, *targets: str) -> list[str]:
+        """The robots whose sightings located one of ``targets``, by name, sorted."""
+        return sorted({s.robot for s in self.sightings if s.target in targets})
 
 
 def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: int,

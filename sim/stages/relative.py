@@ -104,19 +104,17 @@ class SlotBelief:
 def believed_slot(nominal: np.ndarray, targets: tuple[Target, ...], frame: dict[str, Any],
                   yaw_error_deg: float) -> SlotBelief:
     """Where the measured target frame (``common_frame``) puts the slot whose CAD pose is
-    ``nominal`` (4x4, world), and how uncertain: the primary target's sighting and the
-    frame's own error in position, and in rotation the work-piece's yaw error
-    (``yaw_error_deg``, the scenario's) when no secondary target set the frame's axis,
-    with its lever from the primary target."""
+    ``nominal`` (4x4, world), and how uncertain: in position the frame's own shift (its
+    targets' sightings, secondary ones with their ST_error) and SLOT_FRAME_SD, and the
+    frame's turn (the work-piece's yaw error, ``yaw_error_deg``, the scenario's, when one
+    target alone set it) on its lever from the targets it rests on."""
     pose = frame_motion(targets, frame) @ nominal
-    primary = next(t for t in targets if t.role == "primary")
-    sighted = frame["targets"].get(primary.name, {}).get("sd_m", 0.0)
-    turned = len(frame["targets"]) > 1
-    rotation = SLOT_FRAME_SD[1] if turned else max(math.radians(yaw_error_deg),
-                                                    SLOT_FRAME_SD[1])
-    lever = float(np.linalg.norm(pose[:3, 3] - np.asarray(frame["frame"]["origin"])))
-    position = math.hypot(sighted, SLOT_FRAME_SD[0], 0.0 if turned else rotation * lever)
-    return SlotBelief(pose, (position, rotation))
+    measured = frame["frame"]
+    yaw_sd = measured.get("yaw_sd_deg")
+    unknown = math.radians(yaw_error_deg if yaw_sd is None else yaw_sd)  # the turn's sd
+    lever = float(np.linalg.norm(pose[:3, 3] - np.asarray(measured["pivot"])))
+    position = math.hypot(measured["sd_m"], SLOT_FRAME_SD[0], unknown * lever)
+    return SlotBelief(pose, (position, max(unknown, SLOT_FRAME_SD[1])))
 
 
 def slot_model(model: mujoco.MjModel, site: str = "workpiece/slot",

@@ -78,6 +78,9 @@ class World:
     mover: Mover
     pinhole: Pinhole  # of every robot's cameras
     workpiece_error: np.ndarray  # (dx, dy, dyaw) in m, m, rad
+    # each secondary target's true place off its CAD relation to the primary (m, in the
+    # plate: x, y), a draw of its ST_error
+    secondary_errors: dict[str, list[float]]
     recorder: Recorder
     timer: Timer
     # where each robot that has moved believes its camera rests (4x4, MuJoCo convention)
@@ -187,6 +190,7 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
         scene = build_scene(scenario)
     model = copy.deepcopy(scene.model)
     workpiece_error = misplace_workpiece(scenario, model, rng)
+    secondary_errors = misplace_secondaries(scene, model, rng)
     data = scene.make_data()
     belief = scene.make_data()
     errors = ErrorModel(scenario.motion, scene.robots, rng)
@@ -194,7 +198,7 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
                   rng, errors,
                   Mover(model, data, scene.robots, scenario.motion),
                   camera_pinhole(model, scene.robots[0].camera), workpiece_error,
-                  Recorder(None, "") if recorder is None else recorder, timer)
+                  secondary_errors, Recorder(None, "") if recorder is None else recorder, timer)
     world.state()  # the world's poses brought up to its model: the work-piece where it is
     return world
 
@@ -212,3 +216,18 @@ def misplace_workpiece(s: Scenario, model: mujoco.MjModel, rng: np.random.Genera
     model.body_pos[body, :2] += (dx, dy)
     model.body_quat[body] = yaw_quat(math.radians(w.yaw_deg) + dyaw)
     return np.array([dx, dy, dyaw])
+
+
+def misplace_secondaries(scene: Scene, model: mujoco.MjModel, rng: np.random.Generator
+                         ) -> dict[str, list[float]]:
+    """Move each secondary target (its hole) in ``model`` off its CAD place by a draw of
+    its ST_error (the secondary-to-primary tolerance, eq. 4: a standard deviation along
+    each axis of the plate); returns each one's offset (m, plate x and y)."""
+    out: dict[str, list[float]] = {}
+    for t in scene.targets:
+        if t.role != "secondary" or t.st_error <= 0:
+            continue
+        offset = rng.normal(0.0, t.st_error, 2)
+        model.geom_pos[model.geom(t.geom).id, :2] += offset
+        out[t.name] = offset.round(6).tolist()
+    return out
