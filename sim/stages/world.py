@@ -190,7 +190,9 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
         scene = build_scene(scenario)
     model = copy.deepcopy(scene.model)
     workpiece_error = misplace_workpiece(scenario, model, rng)
-    secondary_errors = misplace_secondaries(scene, model, rng)
+    # from a stream spawned off the run's: the draws after it are the same whether or
+    # not the scenario's secondary targets have a tolerance
+    secondary_errors = misplace_secondaries(scene, model, rng.spawn(1)[0])
     data = scene.make_data()
     belief = scene.make_data()
     errors = ErrorModel(scenario.motion, scene.robots, rng)
