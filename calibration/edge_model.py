@@ -145,14 +145,12 @@ def _facing_edges(pose: np.ndarray, boxes: Boxes, camera: int, rig: StereoRig
 PARALLEL_COS = np.cos(np.radians(30.0))  # edges this near parallel merge when close
 
 
-def _parallel_distance(points: np.ndarray, directions: np.ndarray, a: np.ndarray,
-                       b: np.ndarray) -> np.ndarray:
-    """Distances (n, k) from 2-D points (n, 2) on edges running along ``directions``
-    (n, 2, unit) to segments a-b (k, 2), infinite for segments not within 30 deg of
-    parallel to the point's edge."""
+def _parallel(directions: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Which segments a-b (k, 2) run within 30 deg of parallel to each of ``directions``
+    (n, 2, unit): (n, k) bool."""
     ab = b - a
     cos = np.abs(directions @ ab.T) / np.maximum(np.linalg.norm(ab, axis=1), 1e-12)[None]
-    return np.where(cos >= PARALLEL_COS, _segment_distance(points, a, b), np.inf)
+    return cos >= PARALLEL_COS
 
 
 def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -202,9 +200,7 @@ def visible_samples(pose: np.ndarray, boxes: Boxes, rig: StereoRig, camera: int,
     near = _segment_distance(pixels, a2, b2)
     near[np.arange(len(which)), which] = np.inf  # its own edge
     room = near.min(axis=1)
-    parallel = _parallel_distance(pixels, direction, a2, b2)
-    parallel[np.arange(len(which)), which] = np.inf
-    apart = parallel.min(axis=1)
+    apart = np.where(_parallel(direction, a2, b2), near, np.inf).min(axis=1)
     alone = int((inside & ~hidden).sum())
     hidden |= by_others
     for other_pose, other in occluders:
@@ -213,8 +209,10 @@ def visible_samples(pose: np.ndarray, boxes: Boxes, rig: StereoRig, camera: int,
         ob = o_ends[:, 1] @ other_pose[:3, :3].T + other_pose[:3, 3]
         if len(oa) and (oa[:, 2] > 0).all() and (ob[:, 2] > 0).all():
             oa2, ob2 = rig.project(oa, camera), rig.project(ob, camera)
-            room = np.minimum(room, _segment_distance(pixels, oa2, ob2).min(axis=1))
-            apart = np.minimum(apart, _parallel_distance(pixels, direction, oa2, ob2).min(axis=1))
+            other_near = _segment_distance(pixels, oa2, ob2)
+            room = np.minimum(room, other_near.min(axis=1))
+            apart = np.minimum(apart, np.where(_parallel(direction, oa2, ob2), other_near,
+                                               np.inf).min(axis=1))
     use = inside & ~hidden
     tangent = ends[which, 1] - ends[which, 0]
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from mapping import Pinhole, opencv_pose, world_to_camera
 
@@ -125,16 +126,15 @@ def sight(robot: str, left: np.ndarray, right: np.ndarray, target: Target,
                     T[:3, :3] @ in_cam + T[:3, 3])
 
 
-def _nominal_x(z: np.ndarray) -> np.ndarray:
-    """The frame's x axis in the CAD model: the world's x turned into the plate."""
+def _cad_frame(primary: Target) -> np.ndarray:
+    """The target frame (4x4) in the CAD model: at the primary target, z along its
+    normal, x the world's x turned into the plate."""
+    z = primary.normal / np.linalg.norm(primary.normal)
     x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.9 else np.cross([1.0, 0.0, 0.0], z)
-    return x / np.linalg.norm(x)
-
-
-def _turn(z: np.ndarray, angle: float) -> np.ndarray:
-    """The rotation (3x3) by ``angle`` rad about the unit axis ``z``."""
-    k = np.array([[0, -z[2], z[1]], [z[2], 0, -z[0]], [-z[1], z[0], 0]])
-    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, primary.position
+    return T
 
 
 def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict[str, Any]:
@@ -192,12 +192,14 @@ def common_frame(sightings: list[Sighting], targets: tuple[Target, ...]) -> dict
         # the turn about z that best carries the CAD offsets onto the measured ones
         yaw = math.atan2(float(w @ (np.cross(a_plane, b) @ z)), float(w @ (a_plane * b).sum(1)))
         yaw_sd = math.sqrt(1.0 / lever)  # rad: each place's variance over its lever arm
-    R = _turn(z, yaw)
-    shift = q_mid - R @ p_mid
-    origin = R @ primary.position + shift
-    out["frame"] = {"origin": origin.round(5).tolist(),
-                    "x_axis": (R @ _nominal_x(z)).round(6).tolist(), "z_axis": z.round(6).tolist(),
-                    "y_axis": np.cross(z, R @ _nominal_x(z)).round(6).tolist(),
+    motion = np.eye(4)
+    motion[:3, :3] = Rotation.from_rotvec(yaw * z).as_matrix()
+    motion[:3, 3] = q_mid - motion[:3, :3] @ p_mid
+    frame = motion @ _cad_frame(primary)
+    out["frame"] = {"origin": frame[:3, 3].round(5).tolist(),
+                    "x_axis": frame[:3, 0].round(6).tolist(),
+                    "z_axis": frame[:3, 2].round(6).tolist(),
+                    "y_axis": frame[:3, 1].round(6).tolist(),
                     "from": [t.name for t in used], "primary_seen": primary.name in measured,
                     "pivot": q_mid.round(5).tolist(),
                     "sd_m": round(float(np.sqrt(1.0 / w.sum())), 6),
@@ -220,11 +222,7 @@ def frame_motion(targets: tuple[Target, ...], measured: dict[str, Any]) -> np.nd
     if measured.get("frame") is None:  # nothing located: the nominal place
         return np.eye(4)
     primary = next(t for t in targets if t.role == "primary")
-    z = primary.normal / np.linalg.norm(primary.normal)
-    nominal = np.eye(4)
-    nominal[:3, 0], nominal[:3, 2] = _nominal_x(z), z
-    nominal[:3, 1], nominal[:3, 3] = np.cross(z, _nominal_x(z)), primary.position
-    return frame_matrix(measured["frame"]) @ np.linalg.inv(nominal)
+    return frame_matrix(measured["frame"]) @ np.linalg.inv(_cad_frame(primary))
 
 
 def in_measured_frame(point: np.ndarray, targets: tuple[Target, ...],

@@ -47,6 +47,32 @@ def hemisphere(normal: np.ndarray, count: int, min_elevation_rad: float) -> np.n
     return local @ np.stack([e1, e2, n])
 
 
+DIRECTIONS = 4000  # directions the density is counted over
+MIN_ELEVATION_RAD = math.radians(10.0)  # from this elevation up
+BAND_RAD = math.radians(10.0)  # elevation bands (10-20, ..., 80-90 deg) reported apart
+
+
+def band_count() -> int:
+    """How many elevation bands the hemisphere above MIN_ELEVATION_RAD has."""
+    return round((math.pi / 2 - MIN_ELEVATION_RAD) / BAND_RAD)
+
+
+def elevation_bands(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The counting directions (DIRECTIONS, 3) over the hemisphere about ``normal`` and
+    the elevation band (index, lowest first) each lies in."""
+    directions = hemisphere(normal, DIRECTIONS, MIN_ELEVATION_RAD)
+    n = normal / np.linalg.norm(normal)
+    elevation = np.arcsin(np.clip(directions @ n, -1.0, 1.0))
+    band = ((elevation - MIN_ELEVATION_RAD) // BAND_RAD).astype(int)
+    return directions, np.clip(band, 0, band_count() - 1)
+
+
+def band_shares(blocked: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """The blocked share of each elevation band, given which directions are blocked."""
+    count = np.bincount(band, minlength=band_count())
+    return np.bincount(band, weights=blocked, minlength=band_count()) / np.maximum(count, 1)
+
+
 def ray_hits(origin: np.ndarray, directions: np.ndarray, p: Primitive, reach: float
              ) -> np.ndarray:
     """Whether each ray from ``origin`` meets the primitive within ``reach`` (m)."""
@@ -92,8 +118,8 @@ def ray_hits(origin: np.ndarray, directions: np.ndarray, p: Primitive, reach: fl
 
 
 def occlusion_density(target: np.ndarray, normal: np.ndarray, obstacles: list[Primitive],
-                      radius: float, count: int = 4000,
-                      min_elevation_rad: float = math.radians(10.0)) -> float:
+                      radius: float, count: int = DIRECTIONS,
+                      min_elevation_rad: float = MIN_ELEVATION_RAD) -> float:
     """The fraction of the hemisphere's directions from the target that an obstacle
     blocks within ``radius`` (m)."""
     directions = hemisphere(normal, count, min_elevation_rad)

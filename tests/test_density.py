@@ -10,12 +10,17 @@ import mujoco
 import numpy as np
 import pytest
 
-from placement.density import Primitive, hemisphere, occlusion_density, ray_hits
+from placement.density import (
+    Primitive,
+    band_shares,
+    elevation_bands,
+    hemisphere,
+    occlusion_density,
+    ray_hits,
+)
 from sim.config.scenario import load_scenario
 from sim.experiments.generate import (
     KeepOut,
-    band_shares,
-    bands,
     extent_z,
     footprint,
     generate,
@@ -121,7 +126,7 @@ def test_clutter_blocks_every_elevation_as_much_as_requested():
     shares = []
     for seed in range(40):
         clutter = scenario_clutter(s, 0.35, np.random.default_rng([seed, 0]))
-        directions, band = bands(target.normal)
+        directions, band = elevation_bands(target.normal)
         weights = np.bincount(band) / len(band)
         assert float(weights @ clutter.band_shares) == pytest.approx(clutter.density, abs=1e-9)
         if seed % 4 == 0:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from placement.density import Primitive, hemisphere, ray_hits
+from placement.density import Primitive, band_count, band_shares, elevation_bands, ray_hits
 from sim.config.scenario import ObstacleConfig, Scenario
 from sim.world.scene import build_scene
 
@@ -34,9 +34,6 @@ TOLERANCE = 0.02  # the achieved density is within this of the request
 BAND_TOLERANCE = 0.06  # and no band more than this above it
 AIM = 0.005  # drawing stops this close below the request
 MAX_DRAWS = 3000
-DIRECTIONS = 4000  # directions the density is counted over (as placement/density.py)
-MIN_ELEVATION_DEG = 10.0
-BAND_DEG = 10.0  # elevation bands: 10-20, ..., 80-90 deg
 # A point of an obstacle this high (m) or lower gets one standing on the floor (cabinets
 # and racks are at most about this tall); above, it hangs (shelves, beams, lamps)
 FLOOR_STANDING_M = 1.2
@@ -84,26 +81,6 @@ def extent_z(o: ObstacleConfig) -> tuple[float, float]:
     """The obstacle's lowest and highest points (m)."""
     half = o.size[2] if o.shape == "box" else o.size[1] if o.shape == "cylinder" else o.size[0]
     return o.position[2] - half, o.position[2] + half
-
-
-def bands(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The counting directions (DIRECTIONS, 3) over the hemisphere about ``normal`` and
-    the elevation band (index) each lies in."""
-    directions = hemisphere(normal, DIRECTIONS, math.radians(MIN_ELEVATION_DEG))
-    n = normal / np.linalg.norm(normal)
-    elevation = np.degrees(np.arcsin(np.clip(directions @ n, -1.0, 1.0)))
-    band = ((elevation - MIN_ELEVATION_DEG) // BAND_DEG).astype(int)
-    return directions, np.clip(band, 0, band_count() - 1)
-
-
-def band_count() -> int:
-    return round((90.0 - MIN_ELEVATION_DEG) / BAND_DEG)
-
-
-def band_shares(blocked: np.ndarray, band: np.ndarray) -> np.ndarray:
-    """The blocked share of each elevation band."""
-    count = np.bincount(band, minlength=band_count())
-    return np.bincount(band, weights=blocked, minlength=band_count()) / np.maximum(count, 1)
 
 
 def draw(rng: np.random.Generator, target: np.ndarray, direction: np.ndarray, radius: float,
@@ -168,7 +145,7 @@ def generate(request: float, target: np.ndarray, normal: np.ndarray, radius: flo
     if not 0 <= request < 0.9:
         raise ValueError(f"occlusion density {request} is not in [0, 0.9)")
     target = np.asarray(target, float)
-    directions, band = bands(normal)
+    directions, band = elevation_bands(normal)
     blocked = np.zeros(len(directions), bool)
     chosen: list[ObstacleConfig] = []
     density = 0.0
