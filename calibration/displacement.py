@@ -80,6 +80,17 @@ def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
     return Relative(displacement, covariance, obj, goal)
 
 
+def via_feature(object_fit: EdgeFit, goal: np.ndarray, goal_covariance: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The displacement of the object's origin from a goal its camera cannot fit, where a
+    feature the camera sees puts the goal (``goal``: the feature's measured place plus
+    its known relation to the goal, left camera frame, m; ``goal_covariance``: of both,
+    3x3, m^2): eq. 4's stand-in. Returns the displacement and its covariance."""
+    origin = np.zeros(3)
+    return (object_fit.pose[:3, 3] - goal,
+            point_covariance(object_fit, origin) + goal_covariance)
+
+
 # Cameras disagree beyond chance, or one disagrees with the prediction, when their
 # chi-square exceeds its 99.9th percentile: once in a thousand measurements by chance
 CHANCE = 0.999

@@ -38,6 +38,14 @@ class StereoCamera:
                          [0.0, self.fy / z, -self.fy * y / z ** 2],
                          [0.0, 0.0, -self.fx * self.baseline / z ** 2]])
 
+    def point_covariance(self, p: np.ndarray, sd_px: float) -> np.ndarray:
+        """The 3x3 covariance (m^2, camera frame) of the point triangulated at ``p``
+        from a left and a right centre each found to ``sd_px`` per axis (the disparity,
+        their difference, to sqrt(2) ``sd_px``; the rows are rectified to one)."""
+        J = np.linalg.inv(self.jacobian(p))
+        noise = np.array([[1.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 2.0]]) * sd_px ** 2
+        return J @ noise @ J.T
+
     def point(self, z: np.ndarray) -> np.ndarray:
         """The camera-frame point of a measurement (u, v, d): triangulation."""
         depth = self.fx * self.baseline / z[2]

@@ -48,7 +48,7 @@ class Sighting:
     target: str
     pixel: tuple[float, float]  # left image
     disparity: float  # pixels
-    score: float  # the left template match
+    score: float | None  # the left template match (a hole; None: a fitted slot)
     position: np.ndarray  # world (m), through the believed camera pose
     # of ``position``, from the believed camera pose's uncertainty; the sighting's own
     # stereo error is left out: not measured, and its bias near the camera (the hole's
@@ -59,7 +59,8 @@ class Sighting:
 
     def summary(self, truth: np.ndarray) -> dict[str, Any]:
         return {"target": self.target, "pixel": [round(c, 3) for c in self.pixel],
-                "disparity_px": round(self.disparity, 3), "score": round(self.score, 4),
+                "disparity_px": round(self.disparity, 3),
+                "score": None if self.score is None else round(self.score, 4),
                 "position": self.position.round(5).tolist(), "sd_m": round(self.sd_m, 6),
                 "placement": self.placement, "pose": self.pose_status,
                 "error_m": round(float(np.linalg.norm(self.position - truth)), 6)}

@@ -96,7 +96,6 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
     scenario, clutter = trial_scenario(spec)
     timer = Timer()
     world = build_world(scenario, timer)
-    scene = world.scene
     outcomes = []
     with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:
         mapping = explore(world, renderer)
@@ -106,8 +105,7 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         for method in spec.methods:
             began = time.perf_counter()
             run = world.restored(mapped, method_rng(spec.seed, method))
-            targets = scene.targets if method.secondary else (scene.primary,)
-            outcome = place_look_do(run, renderer, problem, method.placement, targets)
+            outcome = place_look_do(run, renderer, problem, method.placement, method.secondary)
             outcomes.append(_outcome(method, outcome.robots(run), outcome.frame, outcome.task,
                                      time.perf_counter() - began))
         render_s = renderer.seconds

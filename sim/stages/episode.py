@@ -24,7 +24,6 @@ import mujoco
 import numpy as np
 
 from calibration.target_frame import common_frame
-from calibration.targets import Target
 from mapping import Pinhole
 from sim.config.scenario import Scenario
 from sim.stages.correction import prior_pose_sd
@@ -36,6 +35,7 @@ from sim.stages.place import place
 from sim.stages.placement_result import Placement, pose_dict, pose_error
 from sim.stages.rating_problem import RatingProblem
 from sim.stages.record import Recorder
+from sim.stages.slot_target import panel_over_slot, task_targets
 from sim.stages.timer import Timer
 from sim.stages.world import World, build_world
 from sim.world.render import Renderer, camera_pose
@@ -62,12 +62,16 @@ class Outcome:
 
 
 def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, method: str,
-                  targets: tuple[Target, ...]) -> Outcome:
+                  secondary: bool = True) -> Outcome:
     """Stages 2-4 on the mapped ``world``: place every robot in turn by the placement
-    ``method`` (``rating``, ``biased_random`` or ``information_gain``) to view one of
-    ``targets``, searching ``problem`` (the rating over the map), look, and with the
-    task on, do it."""
+    ``method`` (``rating``, ``biased_random`` or ``information_gain``) to view one of the
+    targets (with the task on, the slot, and with ``secondary`` the holes that stand in
+    for it: :func:`task_targets`), searching ``problem`` (the rating over the map), look,
+    and with the task on, do it."""
     s = world.scenario
+    targets = task_targets(world, secondary)
+    # beyond the map and the other robots, the panel the task will hang over the slot
+    extra = [panel_over_slot(world)] if s.task.enabled else []
     prior_sd = prior_pose_sd(s.motion)  # of a camera pose not corrected
     corrector = None
     if s.correction.enabled:
@@ -77,7 +81,8 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
     taken: list[np.ndarray] = []
     for robot in world.scene.robots:
         world.recorder.tick()
-        p = place(world, problem, robot, taken, targets, method, corrector, prior_sd)
+        p = place(world, problem, robot, taken, targets, method, corrector, prior_sd,
+                  extra=extra)
         placements[robot.name] = (p,)
         if p.commanded is not None:
             taken.append(p.commanded)
@@ -86,10 +91,8 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
     task = None
     if s.task.enabled:
         with world.timer("task"):
-            done = run_task(world, renderer, placements, frame,
-                            seen.located(*(frame["frame"] or {}).get("from", [])), targets,
-                            method,
-                            corrector, prior_sd)
+            done = run_task(world, renderer, placements, frame, seen.sightings, targets,
+                            method, corrector, prior_sd)
             task = done.summary()
         placements = done.placements
     return Outcome(placements, seen, frame, task)
@@ -153,8 +156,7 @@ class Episode:
             mapping = explore(world, renderer).summary()
             world.hold()
             problem = RatingProblem(world.grid, self.scenario)
-            outcome = place_look_do(world, renderer, problem, self.scenario.search.method,
-                                    targets)
+            outcome = place_look_do(world, renderer, problem, self.scenario.search.method)
         robots = outcome.robots(world)
         scenes = {"scene.xml": world.to_xml("final"),
                   "look.xml": world.to_xml("look", outcome.look.state, outcome.look.bodies)}

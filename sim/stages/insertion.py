@@ -10,16 +10,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from calibration.target_frame import Sighting, in_measured_frame
 from calibration.targets import Target
 from mapping import LyingPose, lying_pose
 from sim.stages.corrector import PoseCorrector
 from sim.stages.place import place, ranked_field
 from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import RatingProblem
-from sim.stages.relative import SlotBelief, believed_slot, slot_half_width
+from sim.stages.relative import SlotBelief, StandIn, believed_slot, slot_half_width, stand_in
 from sim.stages.site_view import SiteWatch, box_corners
+from sim.stages.slot_target import nominal_panel, nominal_slot, stereo_rig
 from sim.stages.task import InsertionTask, Replacement, panel_model
 from sim.stages.task_result import Camera, TaskResult
 from sim.stages.world import World
@@ -45,14 +46,14 @@ def current(history: tuple[Placement, ...] | list[Placement]) -> Placement:
 
 
 def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Placement, ...]],
-             frame: dict[str, Any], frame_robots: list[str], targets: tuple[Target, ...],
+             frame: dict[str, Any], sightings: tuple[Sighting, ...], targets: tuple[Target, ...],
              method: str, corrector: PoseCorrector | None, prior_sd: tuple[float, float]
              ) -> Insertion:
     """Guide the panel into its slot with the robots' current placements; ``frame`` is
-    the target frame their sightings of ``targets`` measured (``frame_robots`` those whose
-    sightings it rests on). A re-placement searches the map as the task left it, with the
-    placement ``method``; ``prior_sd`` is an uncorrected pose's standard deviation
-    (m, deg)."""
+    the target frame their ``sightings`` of ``targets`` measured; a camera placed for a
+    secondary target measures the panel against it (:func:`stand_ins`). A re-placement searches
+    the map as the task left it, with the placement ``method``; ``prior_sd`` is an
+    uncorrected pose's standard deviation (m, deg)."""
     s = world.scenario
     histories = {name: list(h) for name, h in placements.items()}
     at = {name: current(h) for name, h in histories.items()}
@@ -82,7 +83,8 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
         fell (``current``, its rating now) is searched for the best view of the site, the
         panel where it was measured as one more occluder, and moves there unless that
         view is not worth the move; one that lost the panel (``current`` None) is placed
-        for the targets again, as it first was, wherever it can see them."""
+        for the targets again, as it first was, wherever it can see them past the
+        panel."""
         if not s.task.replace:
             return None
         name = cam.robot.name
@@ -91,9 +93,9 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
                  if other != name and p.commanded is not None]
         problem = RatingProblem(world.grid, s)
         record: dict[str, Any] = {"step": step, "robot": name, "reason": reason}
-        goals, extra = targets, []
+        goals, extra = targets, [box_corners(task.model, panel)]  # the panel where it is
         if current is not None:
-            goals, extra = (site,), [box_corners(task.model, panel)]
+            goals = (site,)
             ranked = ranked_field(world, problem, cam.robot, goals, taken, method, extra)
             best = float(ranked.ratings.total.max()) if len(ranked.ratings.total) else 0.0
             record.update(site_rating=round(current, 6), best_rating=round(best, 6))
@@ -108,25 +110,43 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
         at[name] = again
         return Replacement(record, again.camera(prior_sd))
 
-    return done(task.run(cameras, slot, lying_panel(world), replace, frame_robots, watch))
+    frame_robots = sorted({f.robot for f in sightings
+                           if f.target in (frame["frame"] or {}).get("from", [])})
+    return done(task.run(cameras, slot, lying_panel(world), replace, frame_robots, watch,
+                         stand_ins(world, at, sightings, targets, frame, slot, prior_sd)))
 
 
 def slot_belief(world: World, targets: tuple[Target, ...], frame: dict[str, Any]) -> SlotBelief:
     """Where the measured target frame puts the slot (:func:`believed_slot`)."""
-    site = world.belief.site("workpiece/slot")
-    nominal = np.eye(4)
-    nominal[:3, :3], nominal[:3, 3] = np.reshape(site.xmat, (3, 3)), site.xpos
-    return believed_slot(nominal, targets, frame, world.scenario.workpiece.yaw_error_deg)
+    return believed_slot(nominal_slot(world), targets, frame,
+                         world.scenario.workpiece.yaw_error_deg)
+
+
+def stand_ins(world: World, at: dict[str, Placement], sightings: tuple[Sighting, ...],
+              targets: tuple[Target, ...], frame: dict[str, Any], slot: SlotBelief,
+              prior_sd: tuple[float, float]) -> dict[str, list[StandIn]]:
+    """Per placed camera, where each secondary target it sighted from where it stands
+    puts the slot (the target frame's turn of the CAD model relating them); the target
+    it was placed for first."""
+    by_name = {t.name: t for t in targets}
+    rig = stereo_rig(world)
+    out: dict[str, list[StandIn]] = {}
+    for name, p in at.items():
+        mine = [f for f in sightings if f.robot == name and f.placement == p.index
+                and by_name.get(f.target) is not None
+                and by_name[f.target].role == "secondary"]
+        mine.sort(key=lambda f: p.target is None or f.target != p.target.name)
+        for seen in mine:
+            t = by_name[seen.target]
+            offset = slot.position - in_measured_frame(t.position, targets, frame)
+            out.setdefault(name, []).append(
+                stand_in(p.camera(prior_sd), seen, t, offset, slot.sd[1], rig,
+                         p.target is not None and seen.target == p.target.name))
+    return out
 
 
 def lying_panel(world: World) -> LyingPose:
     """The panel's pose where it lies as the robots perceived it (its CAD model fitted to
     the mapped voxels around where the scenario puts it), with its covariance; the
     scenario's pose, with the misplacement's uncertainty, where the map cannot say."""
-    m = world.nominal
-    mocap = int(m.body_mocapid[m.body("panel/panel").id])
-    nominal = np.eye(4)
-    nominal[:3, :3] = Rotation.from_quat(world.belief.mocap_quat[mocap],
-                                         scalar_first=True).as_matrix()
-    nominal[:3, 3] = world.belief.mocap_pos[mocap]
-    return lying_pose(world.grid, panel_model(m), nominal)
+    return lying_pose(world.grid, panel_model(world.nominal), nominal_panel(world))

@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from calibration import locate_hole
@@ -22,6 +23,8 @@ from mapping import OccupancyGrid, Pinhole, opencv_pose
 from placement import line_of_sight
 from sim.config.scenario import Scenario
 from sim.stages.placement_result import Placement
+from sim.stages.relative import SLOT_REFIT_SD, SLOT_WALLS, SlotBelief, slot_model
+from sim.stages.slot_target import is_slot, nominal_slot, sight_slot, stereo_rig
 from sim.stages.world import Bodies, State, World
 from sim.world.render import Renderer, camera_pose
 from sim.world.scene import Robot
@@ -45,10 +48,6 @@ class Look:
     def summary(self, robot: str) -> dict[str, Any]:
         return self.rows[robot]
 
-    def located(self, *targets: str) -> list[str]:
-        """The robots whose sightings located one of ``targets``, by name, sorted."""
-        return sorted({s.robot for s in self.sightings if s.target in targets})
-
 
 def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: int,
                 T_world_mjcam: np.ndarray, pinhole: Pinhole) -> dict[str, Any]:
@@ -69,6 +68,16 @@ def find_target(rgb: np.ndarray, seg: np.ndarray, target: Target, target_geom: i
             "expected_pixel": expected.tolist(),
             "detection_score": None if found is None else found.score,
             "target_pixels": visible_px, "expected_target_pixels": round(full_area, 1)}
+
+
+def found_slot(seg: np.ndarray, model: mujoco.MjModel, slot: Target,
+               sightings: list[Sighting]) -> dict[str, Any]:
+    """A camera placed for the slot saw it when it fitted the rails in stereo; the
+    segmentation says how many of the rails' pixels are in view."""
+    rails = [model.geom(name).id for name in SLOT_WALLS]
+    mine = next((f for f in sightings if f.target == slot.name), None)
+    return {"seen": mine is not None, "pixel": None if mine is None else list(mine.pixel),
+            "target_pixels": int(np.isin(seg, rails).sum())}
 
 
 def target_sd(s: Scenario, t: Target) -> float:
@@ -116,9 +125,12 @@ def look(world: World, renderer: Renderer, placements: list[Placement],
         recorder.camera(robot.name, achieved, pinhole, rgb, depth)
         row: dict[str, Any] = {"seen": False, "pixel": None, "seen_from_placement": p.index}
         if p.target is not None:
-            row.update(find_target(rgb, seg, p.target, world.model.geom(p.target.geom).id,
-                                   achieved, pinhole))
             found = _sight(world, robot, rgb, right, p, targets, prior_sd)
+            if is_slot(p.target):
+                row.update(found_slot(seg, world.model, p.target, found))
+            else:
+                row.update(find_target(rgb, seg, p.target, world.model.geom(p.target.geom).id,
+                                       achieved, pinhole))
             sightings += found
             row["sightings"] = [f.summary(truth[f.target]) for f in found]
         rows[robot.name] = row
@@ -137,13 +149,23 @@ def _sight(world: World, robot: Robot, left: np.ndarray, right: np.ndarray, p: P
     believed = p.believed_pose()
     position_sd, rotation_sd = p.believed_sd(prior_sd)
     hidden = hidden_in_map(world.grid, believed[:3, 3], targets)
+    camera = p.camera(prior_sd)
     for t in targets:
         if hidden[t.name]:
             continue  # whatever is seen there, it is not the target
-        found = sight(robot.name, left, right, t, believed, world.pinhole, s.camera.baseline_m,
-                      position_sd_m=math.hypot(position_sd, target_sd(s, t)),
-                      rotation_sd_deg=rotation_sd,
-                      others=tuple(o for o in targets if o is not t))
+        if is_slot(t):
+            # no closer than a fit repeats: a scenario may place the work-piece exactly
+            belief = SlotBelief(nominal_slot(world), (
+                max(target_sd(s, t), SLOT_REFIT_SD[0]),
+                max(math.radians(s.workpiece.yaw_error_deg), SLOT_REFIT_SD[1])))
+            found = sight_slot(camera, (left, right), t, belief, stereo_rig(world),
+                               slot_model(world.nominal))
+        else:
+            found = sight(robot.name, left, right, t, believed, world.pinhole,
+                          s.camera.baseline_m,
+                          position_sd_m=math.hypot(position_sd, target_sd(s, t)),
+                          rotation_sd_deg=rotation_sd,
+                          others=tuple(o for o in targets if o is not t and not is_slot(o)))
         if found is not None:
             reach = float(np.linalg.norm(found.position - believed[:3, 3]))
             pose_sd = math.hypot(position_sd, reach * math.radians(rotation_sd))

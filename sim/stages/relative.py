@@ -13,6 +13,7 @@ step's execution error.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,9 +29,12 @@ from calibration.displacement import (
     in_world,
     largest_sd,
     measure_relative,
+    via_feature,
 )
+from calibration.edge_fit import fit_edges
 from calibration.edge_model import Boxes, StereoRig
-from calibration.target_frame import frame_motion
+from calibration.ekf import StereoCamera
+from calibration.target_frame import Sighting, frame_motion
 from calibration.targets import Target
 from mapping import opencv_pose
 from sim.stages.task_result import Camera
@@ -49,6 +53,11 @@ SLOT_REFIT_SD = (0.001, math.radians(0.2))
 # below their tops, 0.5-0.7 mm across (bench/measurement.py, 0.8 m, straight down).
 # A tilt known exactly is held to this (rad): 3 um at the rails' height, a numerical floor
 LEVEL_SD_RAD = 1e-4
+# A hole's centre as the detector finds it, per axis (px): within the detector's limits
+# 0.10-0.17 px off the ellipse's centre at the median, at most 0.54 px in ~1200 views
+# (docs/detector_limits.md); a circular Gaussian's median radius is 1.18 sd, and at
+# 0.15 px one in a thousand lies past 0.54 px
+HOLE_CENTRE_SD_PX = 0.15
 # A camera's pose uncertainty (m at a metre, status "uncertain") turns its displacement;
 # an uncorrected camera's rotation is uncertain by this much (rad): the positioning
 # error's scale in the default scenario (0.5 deg)
@@ -117,8 +126,11 @@ def believed_slot(nominal: np.ndarray, targets: tuple[Target, ...], frame: dict[
     return SlotBelief(pose, (position, max(unknown, SLOT_FRAME_SD[1])))
 
 
+SLOT_WALLS = ("workpiece/rail_a", "workpiece/rail_b")  # the slot's walls' geoms
+
+
 def slot_model(model: mujoco.MjModel, site: str = "workpiece/slot",
-               walls: tuple[str, ...] = ("workpiece/rail_a", "workpiece/rail_b")) -> Boxes:
+               walls: tuple[str, ...] = SLOT_WALLS) -> Boxes:
     """The slot's CAD model: its walls (box geoms of the work-piece) in the slot's frame
     (origin at the slot site, axes the work-piece body's)."""
     s = model.site(site)
@@ -140,6 +152,30 @@ def slot_half_width(slot: Boxes) -> float:
     """Half the slot's width (m): from its frame's origin, across (its x axis), to the
     nearest wall's inner face."""
     return float(np.min(np.abs(slot.centres[:, 0]) - slot.halves[:, 0]))
+
+
+def turn_sd(cam: Camera) -> float:
+    """How uncertain a camera's believed rotation is beyond what it says (rad per axis):
+    an uncorrected camera's positioning error."""
+    return 0.0 if cam.trusted else UNCORRECTED_ROTATION_SD
+
+
+def slot_start_in(cam: Camera, slot: Boxes, belief: SlotBelief, fitted: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Where a camera's slot fit starts (slot to camera, OpenCV, 4x4), levelled, and the
+    start's 6x6 covariance: from the camera's own last fit (``fitted``) as repeatable as
+    SLOT_REFIT_SD, else from ``belief`` seen through the camera's believed pose (whose
+    own error adds to the position's)."""
+    T_cam_world = np.linalg.inv(opencv_pose(cam.believed))
+    position_sd, yaw_sd = SLOT_REFIT_SD
+    start = fitted
+    if start is None:
+        start = T_cam_world @ belief.pose
+        position_sd, yaw_sd = math.hypot(belief.sd[0], cam.pose_sd_m), belief.sd[1]
+    up = T_cam_world[:3, 2]  # the world's vertical, in this camera's frame
+    tilt_sd = max(math.hypot(cam.rotation_sd_rad, turn_sd(cam)), LEVEL_SD_RAD)
+    return (levelled(start, up, slot.centres.mean(axis=0)),
+            level_covariance(position_sd, yaw_sd, tilt_sd, up))
 
 
 @dataclass
@@ -181,20 +217,61 @@ class Measurement:
         return {n: c["why"] for n, c in self.cameras.items() if "why" in c}
 
 
+@dataclass(frozen=True)
+class StandIn:
+    """Where a secondary target a camera sighted puts the slot's point: in that camera's
+    frame (OpenCV, m), with the covariance of the sighting and of the target's relation
+    to the slot (3x3, m^2)."""
+
+    target: str
+    goal: np.ndarray
+    covariance: np.ndarray
+    placed_for: bool = False  # the camera was placed for this target
+
+
+def stand_in(cam: Camera, sighting: Sighting, target: Target, offset: np.ndarray,
+             yaw_sd_rad: float, rig: StereoRig, placed_for: bool = False) -> StandIn:
+    """The slot's point by a camera's stereo sighting of a secondary ``target``: the
+    sighting (taken back into the camera's frame through the pose that put it in the
+    world) plus ``offset``, the slot's point minus the target's (world, m, as the target
+    frame turns the CAD model). Its covariance: the triangulation of centres found to
+    HOLE_CENTRE_SD_PX and the perspective shift of the hole's image; the relation's
+    ST_error along the plate; the frame's turn (``yaw_sd_rad``) and the camera's own
+    rotation uncertainty on the offset's lever."""
+    T_world_cam = opencv_pose(cam.believed)
+    R = T_world_cam[:3, :3]
+    point = R.T @ (sighting.position - T_world_cam[:3, 3])
+    depth = float(np.linalg.norm(point))
+    n = target.normal / np.linalg.norm(target.normal)
+    cos = abs(float(n @ (R @ point))) / depth
+    shift_px = rig.fx * (target.radius / depth) ** 2 * cos * math.sqrt(max(1 - cos ** 2, 0.0))
+    camera = StereoCamera(rig.fx, rig.fy, rig.cx, rig.cy, rig.baseline_m)
+    covariance = camera.point_covariance(point, math.hypot(HOLE_CENTRE_SD_PX, shift_px))
+    plane = np.eye(3) - np.outer(n, n)
+    lever = plane @ offset
+    relation = target.st_error ** 2 * plane + yaw_sd_rad ** 2 * (
+        float(lever @ lever) * plane - np.outer(lever, lever))
+    o = R.T @ offset
+    spin = math.hypot(cam.rotation_sd_rad, turn_sd(cam)) ** 2 * (
+        float(o @ o) * np.eye(3) - np.outer(o, o))
+    return StandIn(target.name, point + o, covariance + R.T @ relation @ R + spin, placed_for)
+
+
 class RelativeMeasurer:
     """Measures the panel's displacement from its slot camera by camera."""
 
-    def __init__(self, rig: StereoRig, panel: Boxes, slot: Boxes, slot_belief: SlotBelief) -> None:
+    def __init__(self, rig: StereoRig, panel: Boxes, slot: Boxes, slot_belief: SlotBelief,
+                 stand_ins: dict[str, list[StandIn]] | None = None) -> None:
         self.rig, self.panel, self.slot, self.belief = rig, panel, slot, slot_belief
         self.slot_fits: dict[str, np.ndarray] = {}  # camera name -> slot pose (its frame)
+        # camera name -> the secondary targets it sighted where it stands, the one it
+        # was placed for (if so) first
+        self.stand_ins: dict[str, list[StandIn]] = dict(stand_ins or {})
 
     def forget(self, name: str) -> None:
-        """A camera moved: its slot fit no longer holds."""
+        """A camera moved: its slot fit and its stand-ins no longer hold."""
         self.slot_fits.pop(name, None)
-
-    def _turn_sd(self, cam: Camera) -> float:
-        """How uncertain a camera's believed rotation is (rad per axis)."""
-        return 0.0 if cam.trusted else UNCORRECTED_ROTATION_SD
+        self.stand_ins.pop(name, None)
 
     def measure(self, cam: Camera, images: Images,
                 masks: Masks, panel: PanelBelief
@@ -211,30 +288,46 @@ class RelativeMeasurer:
         # what the task believes in the world is where this camera's believed pose puts
         # it: that pose's own error (m at a metre) adds to both starts' uncertainty
         own = cam.pose_sd_m
-        slot_start = self.slot_fits.get(name)
-        position_sd, yaw_sd = SLOT_REFIT_SD
-        if slot_start is None:
-            slot_start = T_cam_world @ self.belief.pose
-            position_sd, yaw_sd = math.hypot(self.belief.sd[0], own), self.belief.sd[1]
-        up = T_cam_world[:3, 2]  # the world's vertical, in this camera's frame
-        tilt_sd = max(math.hypot(cam.rotation_sd_rad, self._turn_sd(cam)), LEVEL_SD_RAD)
-        slot_start = levelled(slot_start, up, self.slot.centres.mean(axis=0))
-        slot_sd = level_covariance(position_sd, yaw_sd, tilt_sd, up)
-        found = measure_relative(images, self.rig, self.panel, T_cam_world @ panel.pose,
-                                 (math.hypot(panel.position_sd_m, own),
-                                  panel.rotation_sd_rad), self.slot, slot_start, slot_sd,
-                                 masks)
+        slot_start, slot_sd = slot_start_in(cam, self.slot, self.belief,
+                                            self.slot_fits.get(name))
+        panel_start = T_cam_world @ panel.pose
+        panel_sd = (math.hypot(panel.position_sd_m, own), panel.rotation_sd_rad)
+        stand_ins = self.stand_ins.get(name, [])
+        placed_for = stand_ins[0] if stand_ins and stand_ins[0].placed_for else None
+        via = placed_for
+        if placed_for is None:
+            found = measure_relative(images, self.rig, self.panel, panel_start, panel_sd,
+                                     self.slot, slot_start, slot_sd, masks)
+            if found.displacement is None and found.object_fit is not None \
+                    and found.object_fit.ok and stand_ins:
+                # the slot could not be fitted: a secondary target it sighted stands in
+                via = min(stand_ins, key=lambda f: float(np.trace(f.covariance)))
+                found = dataclasses.replace(found, why=None, goal_fit=None)
+        else:  # placed for a secondary target: the panel against it (eq. 4)
+            fit = fit_edges(images, self.panel, self.rig, panel_start, panel_sd,
+                            [(slot_start, self.slot)], masks=masks)
+            found = Relative(None, None, fit, None, None if fit.ok else f"object: {fit.why}")
+        if via is not None and found.object_fit is not None and found.object_fit.ok \
+                and found.displacement is None:
+            d_cam, c_cam = via_feature(found.object_fit, via.goal, via.covariance)
+            found = dataclasses.replace(found, displacement=d_cam, covariance=c_cam)
+        else:
+            via = None
         if found.displacement is None or found.covariance is None:
             return found, {"why": found.why or "no measurement"}, None, None
-        assert found.object_fit is not None and found.goal_fit is not None
-        self.slot_fits[name] = found.goal_fit.pose
+        assert found.object_fit is not None
+        goal = found.goal_fit if found.goal_fit is not None and found.goal_fit.ok else None
+        if goal is not None:
+            self.slot_fits[name] = goal.pose
         d, c = in_world(found.displacement, found.covariance, T_world_cam[:3, :3],
-                        self._turn_sd(cam))
-        record = {"displacement": d.round(6).tolist(),
-                  "sd_m": np.sqrt(np.diag(c)).round(6).tolist(),
-                  "edges": {"panel": found.object_fit.inliers, "slot": found.goal_fit.inliers},
-                  "rms_px": {"panel": round(found.object_fit.rms_px, 3),
-                             "slot": round(found.goal_fit.rms_px, 3)}}
+                        turn_sd(cam))
+        record: dict[str, Any] = {
+            "displacement": d.round(6).tolist(), "sd_m": np.sqrt(np.diag(c)).round(6).tolist(),
+            "edges": {"panel": found.object_fit.inliers, "slot": goal.inliers if goal else 0},
+            "rms_px": {"panel": round(found.object_fit.rms_px, 3),
+                       "slot": round(goal.rms_px, 3) if goal else None}}
+        if via is not None:
+            record["via"] = via.target
         return found, record, (d, c), T_world_cam @ found.object_fit.pose
 
     def step(self, cameras: list[Camera], pairs: dict[str, tuple[Images, Masks]],
@@ -260,7 +353,7 @@ class RelativeMeasurer:
                 world[name], poses[name] = in_w, pose
                 R = opencv_pose(cam.believed)[:3, :3]
                 information = R @ found.object_fit.rotation_information() @ R.T
-                spread = self._turn_sd(cam) ** 2  # the camera's own rotation error
+                spread = turn_sd(cam) ** 2  # the camera's own rotation error
                 if spread > 0:
                     information = np.linalg.pinv(np.linalg.pinv(information) + spread * np.eye(3))
                 turns[name] = information

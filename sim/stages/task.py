@@ -62,6 +62,7 @@ from sim.stages.relative import (
     PanelBelief,
     RelativeMeasurer,
     SlotBelief,
+    StandIn,
     slot_model,
 )
 from sim.stages.site_view import SiteWatch
@@ -262,13 +263,16 @@ class InsertionTask(TaskImages):
 
     def run(self, cameras: list[Camera], slot: SlotBelief, lying: LyingPose,
             replace: Replace | None = None, frame_robots: list[str] | None = None,
-            watch: SiteWatch | None = None) -> TaskResult:
+            watch: SiteWatch | None = None,
+            stand_ins: dict[str, list[StandIn]] | None = None) -> TaskResult:
         """Carry, then steer the panel into the slot believed at ``slot``, which the
         sightings of ``frame_robots`` placed; ``lying`` is where the panel was perceived
         lying, with that pose's covariance;
         ``replace`` places a camera again: one that keeps losing the panel, or whose view
         of the insertion site (rated every step by ``watch``) fell well below what it
-        had."""
+        had; ``stand_ins``: per camera, where the secondary targets it sighted put the
+        slot (one placed for such a target measures the panel against it; another, where
+        it cannot fit the slot)."""
         cfg = self.cfg
         rows = self._camera_rows(cameras)
         cameras = list(cameras)  # a re-placed camera takes its predecessor's place
@@ -293,7 +297,7 @@ class InsertionTask(TaskImages):
         guess = lying.pose.copy()  # the carry keeps the orientation it was picked up with
         guess[:3, 3] = slot.position + above  # where the carrier believes it put the panel
         belief = PanelBelief(guess, cfg.carry_error_m, np.linalg.inv(lying.covariance[:3, :3]))
-        measurer = RelativeMeasurer(self.rig, self.panel_boxes, self.slot_boxes, slot)
+        measurer = RelativeMeasurer(self.rig, self.panel_boxes, self.slot_boxes, slot, stand_ins)
         moved_from: np.ndarray | None = lying.pose
         moved_from_covariance: np.ndarray | None = lying.covariance
         keep: np.ndarray | None = support_layer(self.grid, lying.support_z)  # its floor
