@@ -66,13 +66,14 @@ def test_scenes_the_soak_found_failing_tell_the_truth(soak: list[dict[str, Any]]
 @pytest.mark.slow
 def test_soak_checks_every_part(soak: list[dict[str, Any]]) -> None:
     """The soak ran what it claims and its checks had something to check (the found
-    scenes included: two of them re-place cameras during the task)."""
+    scenes included). Re-placements during the task are audited on a run that forces
+    one (tests/test_task.py): since cameras are placed for the slot past the hanging
+    panel (issue 21), the found scenes that re-placed cameras no longer do."""
     c = tally(soak)["counts"]
     assert c["scenes"] == SCENES + len(FOUND) and c["heavy_scenes"] == 2
     assert c["poses_checked"] == c["robots"] > SCENES
     assert c.get("robots_placed", 0) >= 10 and c.get("robots_refused", 0) >= 1
     assert c.get("sightings_checked", 0) >= 10 and c.get("seen_checked", 0) >= 5
-    assert c.get("replacements", 0) >= 1
     assert sum(c.get(f"corrections_{s}", 0) for s in ("corrected", "uncertain", "failed")) >= 2
 
 

@@ -201,7 +201,9 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     assert (first["index"], first["step"], first["reason"]) == (0, None, "initial")
     assert (second["index"], second["step"], second["placed"]) == (1, 2, True)
     assert second["reason"] == again["reason"] and len(second["candidate_position"]) == 3
-    assert r1["placement"] == 1 and r1["seen_from_placement"] == 0
+    # it ended where it was last placed (the site watch may move it once more)
+    assert r1["placement"] == max(p["index"] for p in r1["placements"] if p["placed"]) >= 1
+    assert r1["seen_from_placement"] == 0
     assert all(seen["placement"] == 0 for seen in r1["sightings"])
     # the re-placement searched the rating function again on the map as the task left
     # it (its best view may be the first one again: the blinding is not in the map) and
@@ -219,6 +221,7 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     assert not audit.findings, audit.findings
     assert audit.counts["poses_checked"] == len(summary["robots"])
     assert audit.counts["looks_checked"] == len(summary["robots"])
+    assert audit.counts["replacements"] >= 1  # the re-placement's records audited too
 
 
 def test_the_left_view_rendered_around_the_panel_finds_what_the_whole_image_does():

@@ -23,8 +23,11 @@ from calibration.target_frame import (
 from calibration.targets import Target
 from mapping import Pinhole
 from sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
-from sim.stages.episode import Episode
+from sim.stages.episode import Episode, place_look_do
+from sim.stages.exploration import explore
+from sim.stages.rating_problem import RatingProblem
 from sim.stages.world import misplace_secondaries
+from sim.world.render import Renderer
 
 
 def _targets() -> tuple[Target, ...]:
@@ -260,30 +263,59 @@ def test_without_a_secondary_sighting_the_slot_moves_with_the_primary_only():
     assert np.allclose(in_measured_frame(point, targets, common_frame([], targets)), point)
 
 
-def _capped(secondary: bool) -> dict:
-    """The default scenario with a box lying on the plate over the primary hole (it hides
-    the hole from every direction, not the slot 0.2 m away nor the secondary hole), with
-    or without the secondary target."""
+def _box(centre: list[float], half: list[float]) -> dict:
+    return {"shape": "box", "position": centre, "size": half}
+
+
+def _hooded() -> dict:
+    """The default scenario with a hood over the slot: a closed box 12 cm wide around
+    the rails, its top 5 cm over them with a slit 12 mm wide (the panel is 10 mm thick)
+    along the slot. The rails are hidden from every direction short of 75 deg up (the
+    slit is 5 cm over the rails and 1 mm narrower than the gap between them); the panel
+    stands 7 cm out of it when it is in; the holes, 0.2 m and more away, are in view."""
     raw = tomllib.loads((SCENARIO_DIR / "default.toml").read_text())
-    raw["obstacles"] = [*raw.get("obstacles", []), {
-        "shape": "box", "position": [0.05, 0.0, 0.535], "size": [0.035, 0.035, 0.016]}]
-    if not secondary:
-        raw["workpiece"]["targets"] = [t for t in raw["workpiece"]["targets"]
-                                       if t["role"] == "primary"]
+    x, top, skirt = -0.15, 0.5975, 0.5575  # the slot's x; the hood's top's and walls' z
+    raw["obstacles"] = [*raw.get("obstacles", []),
+                        _box([x - 0.033, 0.0, top], [0.027, 0.14, 0.0025]),
+                        _box([x + 0.033, 0.0, top], [0.027, 0.14, 0.0025]),
+                        _box([x, 0.125, top], [0.006, 0.015, 0.0025]),
+                        _box([x, -0.125, top], [0.006, 0.015, 0.0025]),
+                        _box([x - 0.0575, 0.0, skirt], [0.0025, 0.14, 0.0375]),
+                        _box([x + 0.0575, 0.0, skirt], [0.0025, 0.14, 0.0375]),
+                        _box([x, 0.1375, skirt], [0.06, 0.0025, 0.0375]),
+                        _box([x, -0.1375, skirt], [0.06, 0.0025, 0.0375])]
     return raw
 
 
 @pytest.mark.slow
-def test_the_frame_rests_on_every_target_seen_and_says_which():
-    """Issue 21: with the task on the slot is the primary target and the holes its
-    secondary ones. The primary hole covered: the frame rests on the slot and the
-    secondary hole, says so, and the task meets the easy tolerance; without the
-    secondary hole in the scenario it rests on the slot alone."""
-    summary, _ = Episode(parse_scenario(_capped(True))).run()
-    frame = summary["target_frame"]["frame"]
-    assert frame["from"] == ["slot", "secondary"] and frame["primary_seen"] is True
-    assert summary["task"]["attempted"] is True
-    assert summary["task"]["success"]["0.2"] is True
-    without, _ = Episode(parse_scenario(_capped(False))).run()
-    assert without["target_frame"]["frame"]["from"] == ["slot"]
-    assert without["task"]["success"]["0.2"] is True
+def test_secondary_targets_stand_in_for_a_hidden_slot():
+    """Issue 21's done-when: the slot hidden under a hood, the holes in view, one mapped
+    world placed both ways (as a sweep's trial does). The map cannot tell the hood's top
+    from the rails' voxels, so a camera is still placed for the slot; it cannot fit the
+    rails and sights no slot. With secondary targets the frame rests on the holes, every
+    measurement is made against a hole (the camera placed for the slot falls back to the
+    one it sighted) and the task meets the easy tolerance (measured: 9.7 mm, 20 % and
+    10 % met); without them no target is located and the task fails every tolerance."""
+    episode = Episode(parse_scenario(_hooded()))
+    world = episode.world
+    with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:
+        explore(world, renderer)
+        world.hold()
+        mapped = world.snapshot()
+        outcomes = {}
+        for secondary in (True, False):
+            run = world.restored(mapped, np.random.default_rng(7))
+            outcomes[secondary] = place_look_do(
+                run, renderer, RatingProblem(run.grid, run.scenario), "rating", secondary)
+    used = outcomes[True]
+    assert "slot" not in used.frame["targets"]
+    assert used.frame["frame"]["primary_seen"] is False and used.frame["frame"]["from"]
+    assert used.task is not None and used.task["attempted"] is True
+    measured = [c for step in used.task["measurements_log"]
+                for c in step["cameras"].values() if "displacement" in c]
+    assert measured and all(c["via"] in ("primary", "secondary") for c in measured)
+    assert used.task["success"]["0.2"] is True
+    alone = outcomes[False]
+    assert alone.frame["frame"] is None
+    assert alone.task is not None and alone.task["attempted"] is False
+    assert not any(alone.task["success"].values())

@@ -373,7 +373,11 @@ class InsertionTask(TaskImages):
                 step_vec *= cfg.max_step_m / length
             executed = (step_vec * (1 + self.rng.normal(0.0, cfg.step_scale))
                         + self.rng.normal(0.0, cfg.step_noise_m, 3))
-            self._move_panel(self.panel[:3, 3] + executed)
+            moved = self.panel[:3, 3] + executed
+            # the slot's floor stops the panel's bottom edge: a real panel rests on it,
+            # the carried (kinematic) one would pass into the plate
+            moved[2] = max(moved[2], float(self.data.site_xpos[self.slot_site][2]))
+            self._move_panel(moved)
             belief.pose[:3, 3] = pose[:3, 3] + step_vec
             measured_sd = largest_sd(spread)
             erred = execution_sd(cfg, float(np.linalg.norm(step_vec)))

@@ -220,6 +220,12 @@ def _workpiece(spec: mujoco.MjSpec, s: Scenario) -> tuple[Target, ...]:
                                 f"a target inside the grid bounds {lo.tolist()} to {hi.tolist()}")
         targets.append(Target(t.name, t.role, f"workpiece/hole_{t.name}", position,
                               rot @ np.array([0.0, 0.0, 1.0]), t.radius_m, t.st_error_m))
+    slot = origin + rot @ np.asarray(wp.site("slot").pos, float)
+    if s.task.enabled and (np.any(slot < lo) or np.any(slot > hi)):  # the task's target
+        raise ScenarioError(s.source, "workpiece.position", list(s.workpiece.position),
+                            f"a work-piece whose slot (the task's primary target, at "
+                            f"{slot.round(3).tolist()}) is inside the grid bounds "
+                            f"{lo.tolist()} to {hi.tolist()}")
     frame = spec.worldbody.add_frame(pos=origin.tolist(), quat=yaw_quat(yaw))
     frame.attach_body(wp.body("workpiece"), "workpiece/", "")
     return tuple(targets)
