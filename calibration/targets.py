@@ -31,6 +31,11 @@ class Target:
     st_error: float
     half_length: float = 0.0
     axis: np.ndarray | None = None
+    # a slot is found by the walls beside it: half their width (m), when wider than it
+    detect_radius: float = 0.0
+    # the rating sees it this far (m) along its normal: a slot's site over the voxels its
+    # walls' tops are mapped into (``position`` is the slot's own point, between their feet)
+    lift: float = 0.0
 
     def rim(self, count: int = 8, scale: float = 1.0) -> np.ndarray:
         """``count`` points on the rim circle (scaled by ``scale``), shape (count, 3)."""
@@ -41,7 +46,8 @@ class Target:
                                   "position": self.position.tolist(),
                                   "normal": self.normal.tolist(), "radius": self.radius}
         if self.half_length > 0 and self.axis is not None:  # a slot
-            out |= {"half_length": self.half_length, "axis": np.asarray(self.axis).tolist()}
+            out |= {"half_length": self.half_length, "axis": np.asarray(self.axis).tolist(),
+                    "lift": self.lift}
         return out
 
 

@@ -52,24 +52,47 @@ are at the ceiling at 5 % density (23 of 24 each; 23 and 24 with the new clutter
 earlier frame), not worse by more than one scene.
 
 With the slot as the task's primary target and the holes as its secondary ones (issue
-21, item 1), the same sweep gives, of 24 at 5 / 20 / 35 %: at 20 % tolerance optimal
-24 / 24 / 21, without secondary targets 21 / 14 / 11, biased random 22 / 24 / 16; at
-10 % 24 / 24 / 21, 20 / 14 / 11, 21 / 24 / 16. Optimal over random, pooled: 9 wins and
-2 losses at 20 % (p = 0.033), 10 and 2 at 10 % (p = 0.019). Random placement's fall
-with density: p = 0.036 at 20 %, 0.084 at 10 % (21 to 16 of 24: a sign, not a test
-24 scenes can pass: its power there is about 0.4); so the fall is asserted at 20 % and
-"not rising" at both. Secondary targets now stand in where the slot cannot be seen:
-optimal with them over optimal without, pooled, 23 wins and no loss at 20 %, 24 and
-none at 10 % (p < 1e-6; 10 and 0 at each of 20 and 35 % density), which is asserted.
+21, item 1), found by its rails (a projected half-width of 22 mm for the detector's
+limits), the same sweep gives, of 24 at 5 / 20 / 35 %: at 20 % tolerance optimal 24 /
+23 / 23, without secondary targets 24 / 23 / 21, biased random 23 / 17 / 20; at 10 %
+24 / 23 / 22, 24 / 23 / 21, 23 / 17 / 20; at 1 % 9 / 9 / 5, 13 / 4 / 9, 1 / 4 / 4.
+Optimal over random, pooled: 12 wins and 2 losses at 20 % (p = 0.006), 11 and 2 at
+10 % (p = 0.011), and 22 and 8 even at 1 % with four steps (p = 0.008). Neither method
+falls significantly with density here (random 23 to 20 of 24, p = 0.17; it is lowest
+at 20 %): with the rails detectable from most views at 320 x 240 the clutter leaves
+both enough; so success is asserted "not rising" with density, as for optimal before.
+Secondary targets no longer change much (with them over without, pooled: 3 wins and 1
+loss at 20 %, 3 and 2 at 10 %): while the slot counted as 7 mm wide for the detector
+(its gap alone), it was under a pixel from most views at this image size, and slot-only
+placement failed in 10 and 14 of 24 scenes at 20 and 35 % density, an artefact of the
+rule, not the secondary targets' effect. They are asserted not to hurt.
+
+The hard tolerance (issue 21, item 5) is what Table 1's images and step bound are for
+(at 320 x 240 the measurement is half as precise, and four steps end many tasks short
+of it), so it has its own sweep with them, at the density where the paper's gap is
+widest (97 % against 1 %): scenarios/regression_hard.toml, 48
+pairs at 5 % density, about four minutes on 2 cores. Measured: at 1 % optimal 48 of
+48, biased random 42 (6 pairs won, none lost: sign test p = 0.016); the final
+displacement is smaller with optimal placement in 34 pairs of 48 (median 0.83 mm
+against 1.17; Wilcoxon signed-rank p = 1.4e-5, and p < 0.012 in either half of the
+pairs alone), and optimal placement stops confident in 31 scenes, random in 5. The
+paper's gap there (97 % against 1 %) does not reproduce: the relative measurement is
+precise from most views biased random placement chooses at 5 % density.
+Power: the success test rests on the discordant pairs, 6 of 48 here; were they all
+won again, the chance of at least the 5 the test needs is 0.73 (binomial, 48 pairs at
+6 in 48), so a change that keeps the effect fails it about one time in four. The
+displacement test at p < 0.01 has a power of 0.98 at the measured effect (2000
+bootstrap resamples of the 48 pairs). Both are asserted.
 """
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from pathlib import Path
 
 import pytest
-from scipy.stats import binomtest, fisher_exact
+from scipy.stats import binomtest, wilcoxon
 
 from sim.cli import main
 from sim.config.scenario import SCENARIO_DIR
@@ -113,14 +136,6 @@ def test_every_scene_ran_every_method(outcomes):
     assert len(outcomes) == 3 * 3 * 3  # methods x densities x tolerances
 
 
-def falls(outcomes, method: str, tol: float) -> float:
-    """One-sided p (Fisher's exact test) of success at 35 % density being lower than at
-    5 % (the densities' scenes are different ones)."""
-    dense, sparse = sum(outcomes[(method, 2, tol)]), sum(outcomes[(method, 0, tol)])
-    table = [[sparse, TRIALS - sparse], [dense, TRIALS - dense]]
-    return float(fisher_exact(table, alternative="greater").pvalue)
-
-
 def test_the_rating_function_beats_biased_random_placement(outcomes):
     for tol in (EASY, MEDIUM):
         paired = [[ok for d in range(3) for ok in outcomes[(m, d, tol)]]
@@ -133,23 +148,46 @@ def test_the_rating_function_beats_biased_random_placement(outcomes):
                     >= sum(outcomes[("random", d, tol)]) - ceiling)
 
 
-def test_success_falls_as_density_and_difficulty_rise(outcomes):
+def test_success_does_not_rise_with_density_or_difficulty(outcomes):
     for method in ("optimal", "optimal_primary", "random"):
         for d in range(3):  # harder tolerances succeed in a subset of the scenes
             for tighter, looser in ((MEDIUM, EASY), (HARD, MEDIUM)):
                 assert all(not t or lo for t, lo in zip(outcomes[(method, d, tighter)],
                                                        outcomes[(method, d, looser)],
                                                        strict=True))
-    assert falls(outcomes, "random", EASY) < 0.05
     for tol in (EASY, MEDIUM):
         for method in ("optimal", "random"):
             assert rate(outcomes, method, 0, tol) >= rate(outcomes, method, 2, tol)
 
 
-def test_secondary_targets_stand_in_for_the_slot(outcomes):
-    """Pooled over the densities, optimal placement with secondary targets succeeds
-    where it fails without them more often than the reverse (sign test)."""
+def test_secondary_targets_do_not_hurt(outcomes):
     for tol in (EASY, MEDIUM):
-        paired = [[ok for d in range(3) for ok in outcomes[(m, d, tol)]]
-                  for m in ("optimal", "optimal_primary")]
-        assert sign_test(*paired) < 0.05
+        with_secondary = sum(sum(outcomes[("optimal", d, tol)]) for d in range(3))
+        without = sum(sum(outcomes[("optimal_primary", d, tol)]) for d in range(3))
+        assert with_secondary >= without - 2  # at most two scenes of 72 worse
+
+
+@pytest.fixture(scope="module")
+def hard(tmp_path_factory) -> dict[str, dict[int, tuple[bool, float]]]:
+    """Per method, per trial: met the hard tolerance, and the final displacement (m)."""
+    db = tmp_path_factory.mktemp("regression_hard") / "regression_hard.sqlite"
+    assert main(["sweep", str(SCENARIO_DIR / "regression_hard.toml"), "--db", str(db),
+                 "--workers", "2"]) == 0
+    out: dict[str, dict[int, tuple[bool, float]]] = defaultdict(dict)
+    with Results(Path(db)) as r:
+        met = {(m, t): bool(ok) for _d, t, m, tol, ok in r.rows("successes") if tol == HARD}
+        for _d, t, m, _placement, _secondary, final, _steps, _by in r.rows("outcomes"):
+            out[m][t] = (met[(m, t)], math.inf if final is None else final)  # not tried
+    return out
+
+
+def test_the_hard_tolerance_orders_optimal_over_random(hard):
+    """At 5 % density optimal placement meets the 1 % tolerance where biased random
+    misses it more often than the reverse, and ends nearer the slot (paired tests)."""
+    trials = sorted(hard["optimal"])
+    assert trials == sorted(hard["random"]) and len(trials) == 48
+    optimal = [hard["optimal"][t] for t in trials]
+    random = [hard["random"][t] for t in trials]
+    assert sign_test([o[0] for o in optimal], [r[0] for r in random]) < 0.05
+    assert wilcoxon([o[1] for o in optimal], [r[1] for r in random],
+                    alternative="less").pvalue < 0.01

@@ -107,7 +107,8 @@ def world():
 
 def test_with_the_task_the_slot_is_primary_and_the_holes_its_secondary_targets(world):
     """The slot is the one primary target, slot-shaped (the panel's half-length along the
-    work-piece's y, the slot's half-width across, facing up, over its nominal place);
+    work-piece's y, the slot's half-width across, facing up, over its nominal place,
+    found by its rails: 22 mm either side);
     every hole is secondary with its own ST_error; without secondary targets only the
     slot remains; with the task off the holes are the targets, as declared."""
     targets = task_targets(world)
@@ -115,6 +116,7 @@ def test_with_the_task_the_slot_is_primary_and_the_holes_its_secondary_targets(w
     assert [t.role for t in targets] == ["primary"] + ["secondary"] * len(world.scene.targets)
     assert slot.name == SLOT and is_slot(slot)
     assert slot.half_length == pytest.approx(0.1) and slot.radius == pytest.approx(0.007)
+    assert slot.detect_radius == pytest.approx(0.022)
     assert slot.axis is not None and abs(float(slot.axis @ [0.0, 1.0, 0.0])) == pytest.approx(1.0)
     site = world.belief.site("workpiece/slot").xpos
     assert np.allclose(slot.position[:2], site[:2]) and slot.position[2] >= site[2]

@@ -284,7 +284,7 @@ class RobotAudit:
     def sighting(self, scene: SavedScene, what: str, target: Any, pixel: Any,
                  pose: dict[str, Any], disparity: Any) -> None:
         try:
-            g, truth, radius = scene.target(str(target))
+            geoms, truth, radius = scene.target(str(target))
         except KeyError:
             self.find("schema", f"{what}: no hole geom 'workpiece/hole_{target}' in scene.xml")
             return
@@ -322,7 +322,7 @@ class RobotAudit:
                           f"its image radius {radius_px:.1f} px)")
             hit, distance = scene.first_hit(T_eye[:3, 3], truth, body)
             reach = float(np.linalg.norm(truth - T_eye[:3, 3]))
-            if hit != g and distance < reach - OBSTRUCTION_EPS_M:
+            if hit not in geoms and distance < reach - OBSTRUCTION_EPS_M:
                 self.find("sighting_obstructed", f"{what}: from the {eye} camera, "
                           f"{scene.geom_label(hit)} is hit {distance:.3f} m along the "
                           f"{reach:.3f} m to the target (keyframe '{scene.keyframe}')")

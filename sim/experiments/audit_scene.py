@@ -11,6 +11,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from sim.stages.relative import SLOT_WALLS
+from sim.stages.slot_target import SLOT, SLOT_SITE
+
 RENDERED_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # MuJoCo's visible groups
 
 
@@ -88,13 +91,21 @@ class SavedScene:
         fovy = math.radians(float(self.model.cam_fovy[c]))
         return width, height, (height / 2) / math.tan(fovy / 2)
 
-    def target(self, name: str) -> tuple[int, np.ndarray, float]:
-        """The hole geom of target ``name``: id, the centre of its top face (world, at the
-        current keyframe) and its radius (m)."""
+    def target(self, name: str) -> tuple[set[int], np.ndarray, float]:
+        """The geoms of target ``name`` (a hole's; the slot's walls and the plate under
+        it), its point (world, at the current keyframe: the centre of a hole's top face,
+        the slot's point between its walls' feet) and its radius (m; the slot's: to its
+        walls' outer faces)."""
+        if name == SLOT:
+            site = self.data.site_xpos[self.model.site(SLOT_SITE).id]
+            walls = [self.model.geom(w).id for w in SLOT_WALLS]
+            radius = max(float(np.linalg.norm((self.data.geom_xpos[w] - site)[:2])
+                               + self.model.geom_size[w, 0]) for w in walls)
+            return {*walls, self.model.geom("workpiece/plate").id}, site.copy(), radius
         g = self.model.geom(f"workpiece/hole_{name}").id
         half = float(self.model.geom_size[g, 1])
         top = self.data.geom_xpos[g] + self.data.geom_xmat[g].reshape(3, 3)[:, 2] * half
-        return g, top, float(self.model.geom_size[g, 0])
+        return {g}, top, float(self.model.geom_size[g, 0])
 
     def first_hit(self, start: np.ndarray, end: np.ndarray, exclude_body: int
                   ) -> tuple[int, float]:

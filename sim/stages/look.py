@@ -23,6 +23,7 @@ from mapping import OccupancyGrid, Pinhole, opencv_pose
 from placement import line_of_sight
 from sim.config.scenario import Scenario
 from sim.stages.placement_result import Placement
+from sim.stages.rating_problem import target_model
 from sim.stages.relative import SLOT_REFIT_SD, SLOT_WALLS, SlotBelief, slot_model
 from sim.stages.slot_target import is_slot, nominal_slot, sight_slot, stereo_rig
 from sim.stages.world import Bodies, State, World
@@ -97,7 +98,7 @@ def hidden_in_map(grid: OccupancyGrid, camera: np.ndarray, targets: tuple[Target
     g = grid
     if not g.inside(g.index(camera[None]))[0]:
         return {t.name: False for t in targets}
-    points = np.array([t.position for t in targets])
+    points = np.array([target_model(t).position for t in targets])  # as the rating saw them
     seen = line_of_sight(g, camera, points, stop_short=SIGHT_STOP_VOXELS * g.resolution,
                          blocked=g.probability() >= g.model.hit)[0]
     inside = g.inside(g.index(points))

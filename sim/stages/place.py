@@ -147,11 +147,13 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         position = ranked.ratings.positions[i]
         if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in rejected):
             continue  # next to a candidate that failed: try somewhere else
-        if not detectable(position[None], target_model(target), problem.camera,
+        model = target_model(target)  # the point the camera aims at, as the rating rates it
+        seen_as = dataclasses.replace(model, radius=max(target.radius, target.detect_radius))
+        if not detectable(position[None], seen_as, problem.camera,
                           baseline_m=s.camera.baseline_m)[0]:
             undetectable += 1  # too far or too oblique for the hole detector
             continue  # (in either stereo image: sightings need both)
-        if corners is not None and not sees_site(position, target.position, corners,
+        if corners is not None and not sees_site(position, model.position, corners,
                                                  math.radians(s.camera.fovy_deg),
                                                  s.camera.near_m, s.camera.far_m):
             out_of_frame += 1  # the insertion it is to measure would not be in focus and
@@ -160,13 +162,13 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         tried += 1
         rejected.append(position)
         with world.timer("ik"):
-            plan = planner.plan(robot, target.position, position)
+            plan = planner.plan(robot, model.position, position)
         why = plan.reason
         if why == "no place to stand":
             tried -= 1
             standless += 1
         if why is None and q.check_sight and blocked_rays(
-                world.nominal, belief, robot, target_points(target_model(target))):
+                world.nominal, belief, robot, target_points(model)):
             why = "occluded"
             world.scene.set_robot(belief, robot, start)
         if why is not None:
@@ -179,7 +181,7 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                     "validity_checks": plan.checks})
             continue
         commanded_pose = camera_pose(belief, robot.camera)
-        world.recorder.chosen(robot.name, position, target.position, target.name)
+        world.recorder.chosen(robot.name, position, model.position, target.name)
         world.recorder.hulls(robot.name, ranked.hulls[target.name])
         world.recorder.planned_path(robot.name, plan.path[:, :2],
                                     planner.camera_path(robot, plan.path))

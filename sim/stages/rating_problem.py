@@ -35,9 +35,9 @@ def camera_model(s: Scenario) -> CameraModel:
 
 
 def target_model(t: Target) -> TargetModel:
-    """A target as the rating function sees it."""
-    return TargetModel(t.name, t.position, t.normal, t.radius, t.st_error, t.half_length,
-                       t.axis)
+    """A target as the rating function sees it (lifted along its normal, if it says so)."""
+    return TargetModel(t.name, t.position + t.lift * t.normal, t.normal, t.radius, t.st_error,
+                       t.half_length, t.axis)
 
 
 class RatingProblem:

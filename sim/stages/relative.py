@@ -154,6 +154,12 @@ def slot_half_width(slot: Boxes) -> float:
     return float(np.min(np.abs(slot.centres[:, 0]) - slot.halves[:, 0]))
 
 
+def slot_outer_half_width(slot: Boxes) -> float:
+    """Half the width (m) of the slot with its walls: from its frame's origin, across, to
+    the farthest wall's outer face."""
+    return float(np.max(np.abs(slot.centres[:, 0]) + slot.halves[:, 0]))
+
+
 def turn_sd(cam: Camera) -> float:
     """How uncertain a camera's believed rotation is beyond what it says (rad per axis):
     an uncorrected camera's positioning error."""
@@ -293,30 +299,27 @@ class RelativeMeasurer:
         panel_start = T_cam_world @ panel.pose
         panel_sd = (math.hypot(panel.position_sd_m, own), panel.rotation_sd_rad)
         stand_ins = self.stand_ins.get(name, [])
-        placed_for = stand_ins[0] if stand_ins and stand_ins[0].placed_for else None
-        via = placed_for
-        if placed_for is None:
-            found = measure_relative(images, self.rig, self.panel, panel_start, panel_sd,
-                                     self.slot, slot_start, slot_sd, masks)
-            if found.displacement is None and found.object_fit is not None \
-                    and found.object_fit.ok and stand_ins:
-                # the slot could not be fitted: a secondary target it sighted stands in
-                via = min(stand_ins, key=lambda f: float(np.trace(f.covariance)))
-                found = dataclasses.replace(found, why=None, goal_fit=None)
-        else:  # placed for a secondary target: the panel against it (eq. 4)
+        if stand_ins and stand_ins[0].placed_for:  # the panel against its target (eq. 4)
+            via: StandIn | None = stand_ins[0]
             fit = fit_edges(images, self.panel, self.rig, panel_start, panel_sd,
                             [(slot_start, self.slot)], masks=masks)
             found = Relative(None, None, fit, None, None if fit.ok else f"object: {fit.why}")
-        if via is not None and found.object_fit is not None and found.object_fit.ok \
-                and found.displacement is None:
+        else:
+            found = measure_relative(images, self.rig, self.panel, panel_start, panel_sd,
+                                     self.slot, slot_start, slot_sd, masks)
+            # where the slot could not be fitted, a target it sighted stands in
+            via = None if found.displacement is not None or not stand_ins else min(
+                stand_ins, key=lambda f: float(np.trace(f.covariance)))
+        if via is not None and found.object_fit is not None and found.object_fit.ok:
             d_cam, c_cam = via_feature(found.object_fit, via.goal, via.covariance)
-            found = dataclasses.replace(found, displacement=d_cam, covariance=c_cam)
+            found = dataclasses.replace(found, displacement=d_cam, covariance=c_cam,
+                                        goal_fit=None, why=None)
         else:
             via = None
         if found.displacement is None or found.covariance is None:
             return found, {"why": found.why or "no measurement"}, None, None
         assert found.object_fit is not None
-        goal = found.goal_fit if found.goal_fit is not None and found.goal_fit.ok else None
+        goal = found.goal_fit  # None: measured against a secondary target
         if goal is not None:
             self.slot_fits[name] = goal.pose
         d, c = in_world(found.displacement, found.covariance, T_world_cam[:3, :3],

@@ -6,8 +6,9 @@ primary is exact to the slot: one machined plate).
 
 The slot as a target is the rating's slot-shaped site (sim/stages/site_view.py): the
 panel's half-length along the slot, the slot's half-width across, lifted over the
-rails' voxels. It is found in a camera's stereo pair by fitting the rails' CAD model to
-the edges (calibration/edge_fit.py), from where the work-piece's nominal place puts it.
+rails' voxels. It is found in a camera's stereo pair
+by fitting the rails' CAD model to the edges (calibration/edge_fit.py), from where the
+work-piece's nominal place puts it.
 """
 
 from __future__ import annotations
@@ -22,7 +23,13 @@ from calibration.edge_model import Boxes, StereoRig
 from calibration.target_frame import Sighting
 from calibration.targets import Target
 from mapping import opencv_pose
-from sim.stages.relative import SlotBelief, slot_half_width, slot_model, slot_start_in
+from sim.stages.relative import (
+    SlotBelief,
+    slot_half_width,
+    slot_model,
+    slot_outer_half_width,
+    slot_start_in,
+)
 from sim.stages.site_view import box_corners, site_target
 from sim.stages.task import panel_model
 from sim.stages.task_result import Camera
@@ -42,12 +49,17 @@ def nominal_slot(world: World) -> np.ndarray:
 
 
 def slot_target(world: World) -> Target:
-    """The slot as the task's primary target, at its nominal place, on the mapped grid."""
+    """The slot as the task's primary target, at its nominal place, on the mapped grid:
+    the insertion site, where the panel goes (the rating's slot-shaped site), found by
+    fitting the walls beside it (its ``detect_radius``: their outer faces, 22 mm either
+    side for the default rails), whose edges the detector's limits must resolve."""
     slot = nominal_slot(world)
+    walls = slot_model(world.nominal)
     site = site_target(world.grid, world.scenario, slot[:3, 3], panel_model(world.nominal),
-                       slot[:3, 1], slot_half_width(slot_model(world.nominal)))
-    return Target(SLOT, "primary", SLOT_SITE, site.position, site.normal, site.radius, 0.0,
-                  site.half_length, site.axis)
+                       slot[:3, 1], slot_half_width(walls))
+    return Target(SLOT, "primary", SLOT_SITE, slot[:3, 3], site.normal, site.radius, 0.0,
+                  site.half_length, site.axis, detect_radius=slot_outer_half_width(walls),
+                  lift=float(site.position[2] - slot[2, 3]))
 
 
 def task_targets(world: World, secondary: bool = True) -> tuple[Target, ...]:
@@ -102,7 +114,7 @@ def sight_slot(cam: Camera, images: tuple[np.ndarray, np.ndarray], target: Targe
     fit = fit_edges(images, slot, rig, start, covariance)
     if not fit.ok:
         return None
-    in_cam = fit.pose @ np.linalg.solve(belief.pose, np.append(target.position, 1.0))
+    in_cam = fit.pose @ np.linalg.solve(belief.pose, np.append(target.position, 1.0))  # origin
     u, v = rig.project(in_cam[None, :3], 0)[0]
     in_world = opencv_pose(cam.believed) @ in_cam
     return Sighting(cam.robot.name, target.name, (float(u), float(v)),
