@@ -132,16 +132,15 @@ def stand_ins(world: World, at: dict[str, Placement], sightings: tuple[Sighting,
     rig = stereo_rig(world)
     out: dict[str, list[StandIn]] = {}
     for name, p in at.items():
+        placed_for = None if p.target is None else p.target.name
         mine = [f for f in sightings if f.robot == name and f.placement == p.index
-                and by_name.get(f.target) is not None
-                and by_name[f.target].role == "secondary"]
-        mine.sort(key=lambda f: p.target is None or f.target != p.target.name)
+                and f.target in by_name and by_name[f.target].role == "secondary"]
+        mine.sort(key=lambda f: f.target != placed_for)  # the one it was placed for first
         for seen in mine:
             t = by_name[seen.target]
             offset = slot.position - in_measured_frame(t.position, targets, frame)
-            out.setdefault(name, []).append(
-                stand_in(p.camera(prior_sd), seen, t, offset, slot.sd[1], rig,
-                         p.target is not None and seen.target == p.target.name))
+            out.setdefault(name, []).append(stand_in(p.camera(prior_sd), seen, t, offset,
+                                                     slot.sd[1], rig, seen.target == placed_for))
     return out
 
 

@@ -6,9 +6,8 @@ primary is exact to the slot: one machined plate).
 
 The slot as a target is the rating's slot-shaped site (sim/stages/site_view.py): the
 panel's half-length along the slot, the slot's half-width across, lifted over the
-rails' voxels. It is found in a camera's stereo pair
-by fitting the rails' CAD model to the edges (calibration/edge_fit.py), from where the
-work-piece's nominal place puts it.
+rails' voxels. It is found in a camera's stereo pair by fitting the rails' CAD model to
+the edges (calibration/edge_fit.py), from where the work-piece's nominal place puts it.
 """
 
 from __future__ import annotations
