@@ -13,6 +13,7 @@ from sim.config.scenario import load_scenario
 from sim.config.schema import ScenarioError
 from sim.determinism import is_command, pin
 from sim.experiments.results import ResultsError
+from sim.outcome import outcome
 from sim.world.gl import resolve_gl_backend
 
 EXIT_OK, EXIT_FAILURE, EXIT_INVALID = 0, 1, 2
@@ -35,6 +36,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     run.add_argument("--record-unknown", action="store_true",
                      help="record never-observed voxels too (world/grid/unknown)")
+    run.add_argument("--video", action="store_true",
+                     help="film the episode from the overview's camera (episode.mp4)")
+    run.add_argument("--quiet", action="store_true",
+                     help="no progress lines while it runs (the outcome is still printed)")
     sweep = sub.add_parser("sweep", help="run many paired trials into a results database")
     sweep.add_argument("spec", type=Path, help="sweep TOML file (e.g. scenarios/table1.toml)")
     sweep.add_argument("--db", type=Path, required=True, help="results database (SQLite)")
@@ -71,12 +76,12 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     _log(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
          f"{scenario.robots.count} robot(s)")
-    summary = write_run(episode, out, not args.no_record, args.record_unknown)
-    for robot in summary["robots"]:
-        target = robot.get("target", {}).get("name", "-")
-        _log(f"{robot['name']}: placed={robot['placed']} target={target} seen={robot['seen']}")
-    _log(f"wrote {out}/summary.json, scene.xml, look.xml"
-         f"{'' if args.no_record else ', run.rrd'} in {time.perf_counter() - start:.1f} s")
+    summary = write_run(episode, out, not args.no_record, args.record_unknown,
+                        None if args.quiet else _log, args.video)
+    _log(f"wrote {out}/summary.json, scene.xml, look.xml, overview.png"
+         f"{'' if args.no_record else ', run.rrd'}{', episode.mp4' if args.video else ''}"
+         f" in {time.perf_counter() - start:.1f} s")
+    print(outcome(summary, None if args.no_record else out / "run.rrd"), end="")
     return EXIT_OK
 
 

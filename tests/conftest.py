@@ -40,8 +40,11 @@ def run_taskcam(*args: str, cwd: Path | None = None,
 
 @pytest.fixture(scope="session")
 def default_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    """``taskcam run`` on the default scenario, once per session: (run dir, summary)."""
-    out = tmp_path_factory.mktemp("default_run")
+    """``taskcam run`` on the default scenario, once per session: (run dir, summary); what
+    it printed is beside the run directory (``stdout.txt``, ``stderr.txt``)."""
+    out = tmp_path_factory.mktemp("default_run") / "run"
     done = run_taskcam("run", "--out", str(out))
     assert done.returncode == 0, done.stderr
+    (out.parent / "stdout.txt").write_text(done.stdout)
+    (out.parent / "stderr.txt").write_text(done.stderr)
     return out, json.loads((out / "summary.json").read_text())

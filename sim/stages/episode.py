@@ -17,6 +17,7 @@ from one mapped world: :func:`place_look_do` is that part.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -26,6 +27,7 @@ import numpy as np
 from calibration.target_frame import common_frame
 from mapping import Pinhole
 from sim.config.scenario import Scenario
+from sim.outcome import look_line, mapping_line, placement_line, task_line
 from sim.stages.correction import prior_pose_sd
 from sim.stages.corrector import PoseCorrector
 from sim.stages.exploration import explore
@@ -83,11 +85,13 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
         world.recorder.tick()
         p = place(world, problem, robot, taken, targets, method, corrector, prior_sd,
                   extra=extra)
+        world.progress(placement_line(robot.name, p.summary()))
         placements[robot.name] = (p,)
         if p.commanded is not None:
             taken.append(p.commanded)
     seen = look(world, renderer, [h[0] for h in placements.values()], targets, prior_sd)
     frame = common_frame(list(seen.sightings), targets)
+    world.progress(look_line(seen.rows, frame))
     task = None
     if s.task.enabled:
         with world.timer("task"):
@@ -95,6 +99,7 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
                             method, corrector, prior_sd)
             task = done.summary()
         placements = done.placements
+        world.progress(task_line(task))
     return Outcome(placements, seen, frame, task)
 
 
@@ -141,7 +146,8 @@ class Episode:
         """Stage 1 alone: ``summary.json``'s ``mapping``."""
         return explore(self.world, renderer).summary()
 
-    def run(self, recorder: Recorder | None = None
+    def run(self, recorder: Recorder | None = None,
+            progress: Callable[[str], None] | None = None
             ) -> tuple[dict[str, Any], dict[str, tuple[str, dict[str, bytes]]]]:
         """All stages; returns ``summary.json``'s content and the scenes to save, by file
         name (their MJCF and the files it reads): ``scene.xml``, the world as it ended
@@ -149,11 +155,16 @@ class Episode:
         were looked for (keyframe ``look``; the arms' mounts tilted as they were then)."""
         t0 = time.perf_counter()
         world = self.world if recorder is None else replace(self.world, recorder=recorder)
+        world = world if progress is None else replace(world, progress=progress)
         targets = world.scene.targets
+        world.recorder.step(0)
+        world.recorder.scene(world.model, world.data, [r.name for r in world.scene.robots],
+                             self.scenario.task.enabled)
         world.recorder.targets([t.name for t in targets], np.array([t.position for t in targets]),
                                [t.radius for t in targets])
         with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:
             mapping = explore(world, renderer).summary()
+            world.progress(mapping_line(mapping))
             world.hold()
             problem = RatingProblem(world.grid, self.scenario)
             outcome = place_look_do(world, renderer, problem, self.scenario.search.method)

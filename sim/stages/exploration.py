@@ -97,8 +97,11 @@ def explore(world: World, renderer: Renderer) -> Survey:
     sensor = DepthSensor(renderer, pinhole, s.mapping.depth_source, s.camera.baseline_m,
                          world.scene.robot_geoms())
 
-    def on_view(robot: Robot, T: np.ndarray, gain: float, depth: np.ndarray) -> None:
+    def on_view(robot: Robot, T: np.ndarray, gain: float, depth: np.ndarray,
+                entropy_bits: float) -> None:
         recorder.tick()
+        recorder.bodies(world.data)
+        recorder.entropy(entropy_bits)
         recorder.camera(robot.name, camera_pose(world.data, robot.camera), pinhole, depth=depth)
         recorder.view(robot.name, T, pinhole, s.camera.far_m, gain)
 
@@ -125,12 +128,17 @@ class _Chosen:
     gain: float
 
 
+# called after each view: the robot, its camera's pose (OpenCV, world), the view's gain
+# (bits; NaN for a start view), its depth image (m) and the region's entropy after it
+OnView = Callable[[Robot, np.ndarray, float, np.ndarray, float], None]
+
+
 class Exploration:
     """Runs the mapping stage of an episode on its scene, data and grid."""
 
     def __init__(self, scene: Scene, data: mujoco.MjData, grid: OccupancyGrid,
                  sensor: DepthSensor, pinhole: Pinhole, rng: np.random.Generator,
-                 on_view: Callable[[Robot, np.ndarray, float, np.ndarray], None] | None = None,
+                 on_view: OnView | None = None,
                  world: mujoco.MjModel | None = None, floor: FloorMap | None = None) -> None:
         """``data`` belongs to ``world``, the simulated world (default: the nominal
         model); the views are taken there. The bases' scanners scan the ``floor``
@@ -197,7 +205,7 @@ class Exploration:
                            "gain": None if math.isnan(gain) else gain,
                            "region_entropy_bits": self.history[-1]})
         if self.on_view is not None:
-            self.on_view(robot, T, gain, depth)
+            self.on_view(robot, T, gain, depth, self.history[-1])
 
     # ------------------------------------------------------------ choosing
 

@@ -26,7 +26,6 @@ def move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector 
     ``prior_sd`` is an uncorrected pose's standard deviation (m, deg). Time spent on
     frames during the move counts as correction's."""
     timer, recorder = world.timer, world.recorder
-    links = sorted(robot.body_ids)
     frames: Callable[[float, np.ndarray], None] | None = None
     if corrector is not None:
         with timer("correction"):
@@ -37,8 +36,7 @@ def move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector 
 
     def on_sample(t: float, measured: np.ndarray) -> None:
         nonlocal framing
-        recorder.motion(robot.name, t, world.data.xpos[links],
-                        camera_pose(world.data, robot.camera))
+        recorder.motion(robot.name, t, world.data, camera_pose(world.data, robot.camera))
         if frames is not None:
             start = time.perf_counter()
             frames(t, measured)

@@ -1,27 +1,40 @@
-"""The rerun recording of an episode: cameras, images, depth, grid, ratings, choices.
+"""The rerun recording of an episode: the world and its moving bodies, cameras, images,
+depth, grid, ratings, choices, and a layout to open it on.
 
-Entity paths: ``world/grid``, ``world/targets``, ``world/<robot>/camera`` (a pinhole with
-``rgb`` and ``depth`` beneath it), ``world/<robot>/candidates``, ``world/<robot>/chosen``.
-Everything is on the ``step`` timeline; the robots' moves (``world/<robot>/links`` and
-their cameras) are on the ``sim_time`` timeline too. Quaternions go to rerun as x, y, z,
-w.
+Entity paths: ``world/scene`` (every drawn geom under its body: sim/stages/scene_record.py),
+``world/grid`` (the occupancy map, beside the true geometry: hide either),
+``world/targets``, ``world/<robot>/camera`` (a pinhole with ``rgb`` and ``depth`` beneath
+it), ``world/<robot>/task/left`` (its left image during the task, with the edges its fits
+matched), ``world/<robot>/candidates``, ``world/<robot>/chosen``; plots under ``mapping``
+(the region's entropy, each view's gain) and ``task`` (the measured displacement).
+Everything is on the ``step`` timeline; the robots' moves and the task are on the
+``sim_time`` timeline too. Quaternions go to rerun as x, y, z, w.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 from scipy.spatial.transform import Rotation
 
 from mapping import OccupancyGrid, Pinhole, opencv_pose
+from sim.stages.scene_record import SceneGeometry, log_geometry, log_poses
 
 if TYPE_CHECKING:
+    import mujoco
+
     from calibration.displacement import Relative
     from sim.stages.correction import Correction
+    from sim.stages.overview import Film
     from sim.stages.task_result import Camera
+
+
+BODY_RATE_HZ = 30.0  # moving bodies' poses are logged at most this often in simulated time
 
 
 def _colormap(values: np.ndarray) -> np.ndarray:
@@ -34,11 +47,16 @@ def _colormap(values: np.ndarray) -> np.ndarray:
 class Recorder:
     """Writes one ``.rrd`` file; a no-op when ``path`` is None."""
 
-    def __init__(self, path: Path | None, recording_id: str, unknown: bool = False) -> None:
+    def __init__(self, path: Path | None, recording_id: str, unknown: bool = False,
+                 film: Film | None = None) -> None:
         self.path = path
+        self.film = film  # the episode filmed too, from the bodies' poses
         self.unknown = unknown  # record never-observed voxels with the grid
         self.rec: rr.RecordingStream | None = None
         self.steps = 0  # the ``step`` timeline's latest value
+        self.model: mujoco.MjModel | None = None  # the world's, once :meth:`scene` logged it
+        self.geometry: SceneGeometry | None = None
+        self.bodies_s = -math.inf  # the simulated time (s) the bodies were last logged at
         if path is not None:
             self.rec = rr.RecordingStream("taskcam", recording_id=recording_id)
             self.rec.save(str(path))
@@ -52,6 +70,36 @@ class Recorder:
         """The next step of the ``step`` timeline."""
         self.steps += 1
         self.step(self.steps)
+
+    def scene(self, model: mujoco.MjModel, data: mujoco.MjData, robots: list[str],
+              task: bool) -> None:
+        """The world's geometry and its bodies where they are now, and the layout the
+        recording opens on (see :func:`layout`); later poses come with :meth:`bodies`."""
+        if self.film is not None:
+            self.film.frame(data, None)
+        if self.rec is None:
+            return
+        self.model = model
+        self.geometry = log_geometry(self.rec, model, data)
+        self.rec.send_blueprint(layout(robots, task))
+
+    def bodies(self, data: mujoco.MjData, time_s: float | None = None) -> None:
+        """The moving bodies' poses now, on the timelines set (and a film's frame at
+        ``time_s``, simulated; None: a still)."""
+        if self.film is not None:
+            self.film.frame(data, time_s)
+        if self.rec is None or self.model is None or self.geometry is None:
+            return
+        if time_s is not None:  # a move's samples come every physics step: fewer will do
+            if 0.0 <= time_s - self.bodies_s < 1.0 / BODY_RATE_HZ:
+                return
+            self.bodies_s = time_s
+        log_poses(self.rec, self.model, data, self.geometry)
+
+    def entropy(self, bits: float) -> None:
+        """The mapped region's mean entropy after a view (bits per voxel)."""
+        if self.rec is not None:
+            self.rec.log("mapping/region_entropy_bits", rr.Scalars(bits))
 
     def targets(self, names: list[str], positions: np.ndarray, radii: list[float]) -> None:
         if self.rec is not None:
@@ -104,11 +152,9 @@ class Recorder:
         far = rays * depth @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
         apex = T_world_cam[:3, 3]
         strips = [[apex, c] for c in far] + [[*far, far[0]]]
-        label = "start" if np.isnan(gain) else f"gain {gain:.1f} bits"
-        self.rec.log(f"world/{robot}/views", rr.LineStrips3D(strips, colors=[90, 200, 255],
-                                                            labels=[label] * len(strips)))
+        self.rec.log(f"world/{robot}/views", rr.LineStrips3D(strips, colors=[90, 200, 255]))
         if not np.isnan(gain):
-            self.rec.log(f"gain/{robot}", rr.Scalars(gain))
+            self.rec.log(f"mapping/gain_bits/{robot}", rr.Scalars(gain))
 
     def candidates(self, robot: str, positions: np.ndarray, totals: np.ndarray) -> None:
         if self.rec is None:
@@ -127,14 +173,15 @@ class Recorder:
                                triangle_indices=np.arange(len(tris)).reshape(-1, 3),
                                albedo_factor=[0.9, 0.3, 0.3, 0.35]))
 
-    def motion(self, robot: str, time_s: float, links: np.ndarray,
+    def motion(self, robot: str, time_s: float, data: mujoco.MjData,
                T_world_mjcam: np.ndarray) -> None:
-        """The robot during a move, on the ``sim_time`` timeline: its links' origins as a
-        line and its camera's pose."""
+        """The world during a robot's move, on the ``sim_time`` timeline: the bodies'
+        poses and the camera's."""
+        if self.rec is not None:
+            self.rec.set_time("sim_time", duration=time_s)
+        self.bodies(data, time_s)
         if self.rec is None:
             return
-        self.rec.set_time("sim_time", duration=time_s)
-        self.rec.log(f"world/{robot}/links", rr.LineStrips3D([links], colors=[230, 140, 40]))
         T = opencv_pose(T_world_mjcam)
         self.rec.log(f"world/{robot}/camera", rr.Transform3D(translation=T[:3, 3],
                                                              mat3x3=T[:3, :3]))
@@ -156,12 +203,13 @@ class Recorder:
         self.rec.log(f"world/{robot}/fiducials",
                      rr.Ellipsoids3D(centers=centres, half_sizes=halves, quaternions=quats,
                                      colors=[240, 80, 200]))
+        # thin, so that the image stays visible beneath
         self.rec.log(f"world/{robot}/camera/rgb/fiducials",
-                     rr.Points2D([f.pixel for f in correction.used], radii=3.0,
+                     rr.Points2D([f.pixel for f in correction.used], radii=1.5,
                                  colors=[240, 80, 200]))
         self.rec.log(f"world/{robot}/camera/rgb/fiducial_tracks",
                      rr.LineStrips2D([np.array(f.track) for f in correction.used],
-                                     colors=[240, 80, 200]))
+                                     radii=0.5, colors=[240, 80, 200, 160]))
         if correction.pose is not None:
             T = opencv_pose(correction.pose)
             self.rec.log(f"world/{robot}/corrected_camera",
@@ -170,13 +218,16 @@ class Recorder:
                          rr.Arrows3D(vectors=0.1 * np.eye(3), colors=[[255, 0, 0], [0, 255, 0],
                                                                       [0, 0, 255]]))
 
-    def panel(self, time_s: float, true: np.ndarray, measured: np.ndarray | None,
-              displacement_m: float | None = None) -> None:
-        """The panel during the task, on the ``sim_time`` timeline: its true bottom-edge
-        centre, where the cameras measured it, and the measured distance to its slot."""
+    def panel(self, time_s: float, data: mujoco.MjData, true: np.ndarray,
+              measured: np.ndarray | None, displacement_m: float | None = None) -> None:
+        """The panel during the task, on the ``sim_time`` timeline: the bodies' poses, its
+        true bottom-edge centre, where the cameras measured it, and the measured distance
+        to its slot."""
+        if self.rec is not None:
+            self.rec.set_time("sim_time", duration=time_s)
+        self.bodies(data, time_s)
         if self.rec is None:
             return
-        self.rec.set_time("sim_time", duration=time_s)
         self.rec.log("world/panel/true", rr.Points3D([true], radii=0.006, colors=[60, 220, 60]))
         if measured is not None:
             self.rec.log("world/panel/measured",
@@ -228,7 +279,28 @@ class Recorder:
                                      labels=[label], colors=[60, 220, 90]))
 
     def close(self) -> None:
+        if self.film is not None:
+            self.film.close()
+            self.film = None
         if self.rec is not None:
             self.rec.flush()
             self.rec.disconnect()
             self.rec = None
+
+
+def layout(robots: list[str], task: bool) -> rrb.Blueprint:
+    """The layout a recording opens on: the 3-D world large; beside it each robot's left
+    image with what was found in it (during the task, its fitted edges; else, the
+    fiducials of its pose correction); below, the mapping's entropy and gains (``step``
+    timeline) and the task's displacement (``sim_time``)."""
+    image = "task/left" if task else "camera/rgb"
+    cameras = [rrb.Spatial2DView(origin=f"world/{r}/{image}", name=f"{r}: left image")
+               for r in robots]
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(rrb.Spatial3DView(origin="world", name="world"),
+                           rrb.Vertical(*cameras), column_shares=[3, 1]),
+            rrb.Horizontal(rrb.TimeSeriesView(origin="mapping", name="mapping (bits)"),
+                           rrb.TimeSeriesView(origin="task", name="task (m)")),
+            row_shares=[3, 1]),
+        collapse_panels=True)

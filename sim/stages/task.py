@@ -293,7 +293,7 @@ class InsertionTask(TaskImages):
         for k, s in enumerate(np.linspace(0.0, 1.0, 11)):  # the open-loop carry
             lift = np.array([0.0, 0.0, 4 * s * (1 - s) * cfg.approach_m])
             self._move_panel((1 - s) * start + s * arrival + lift)
-            self.recorder.panel(t0 + 0.2 * k, self.panel[:3, 3], None)
+            self.recorder.panel(t0 + 0.2 * k, self.data, self.panel[:3, 3], None)
         guess = lying.pose.copy()  # the carry keeps the orientation it was picked up with
         guess[:3, 3] = slot.position + above  # where the carrier believes it put the panel
         belief = PanelBelief(guess, cfg.carry_error_m, np.linalg.inv(lying.covariance[:3, :3]))
@@ -353,7 +353,7 @@ class InsertionTask(TaskImages):
             if watch is not None:
                 self._watch(cameras, watch, step, log[-1], replacements, replace, measurer,
                             pose)
-            self.recorder.panel(t, self.panel[:3, 3], pose[:3, 3],
+            self.recorder.panel(t, self.data, self.panel[:3, 3], pose[:3, 3],
                                 float(np.linalg.norm(displacement)))
             spread = np.zeros((3, 3)) if covariance is None else covariance
             next_error = execution_sd(cfg, cfg.gain * float(np.linalg.norm(displacement)))

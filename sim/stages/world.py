@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -46,6 +47,10 @@ def new_grid(s: Scenario) -> OccupancyGrid:
     g = s.grid
     return OccupancyGrid.from_bounds(np.array(g.bounds_min), np.array(g.bounds_max),
                                      g.resolution_m, SensorModel(*s.sensor()))
+
+
+def print_nothing(line: str) -> None:
+    """A world's default progress: silent."""
 
 
 @dataclass(frozen=True)
@@ -89,6 +94,8 @@ class World:
     # the places each robot's base can get to, as planners found them (keyed by what
     # they depend on): the methods restored from one snapshot share them
     places: dict[tuple[Any, ...], Any] = field(default_factory=dict)
+    # told a line as each stage ends (``taskcam run`` prints them)
+    progress: Callable[[str], None] = field(default=print_nothing)
 
     @property
     def nominal(self) -> mujoco.MjModel:
