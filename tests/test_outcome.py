@@ -81,7 +81,7 @@ def test_the_overview_frames_the_workpiece_and_every_robot():
     model, data = scene.model, scene.make_data()
     workpiece = [b for b in range(model.nbody) if model.body(b).name.startswith("workpiece/")]
     robots = [sorted(r.body_ids) for r in scene.robots]
-    framed = framed_points(model, data, workpiece + [b for r in robots for b in r])
+    framed = framed_points(model, data, [r.body_ids for r in scene.robots])
     with Overview(model, framed) as view:
         plain = view.render(data)
         pinhole = camera_pinhole(model, scene.robots[0].camera)

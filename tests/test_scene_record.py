@@ -18,6 +18,9 @@ SCENE = """
 <mujoco>
   <asset>
     <material name="red" rgba="0.9 0.1 0.1 1"/>
+    <texture name="chequer" type="2d" builtin="checker" rgb1="1 0 0" rgb2="0 0 1"
+             width="8" height="8"/>
+    <material name="chequered" texture="chequer"/>
     <mesh name="tetra" vertex="0 0 0  0.1 0 0  0 0.1 0  0 0 0.1"/>
   </asset>
   <worldbody>
@@ -26,6 +29,7 @@ SCENE = """
       <geom name="top" type="box" size="0.3 0.2 0.02" material="red"/>
       <geom name="proxy" type="box" size="0.3 0.2 0.1" group="3"/>
       <geom name="ghost" type="sphere" size="0.05" rgba="1 1 1 0"/>
+      <geom name="leg" type="box" pos="0 0 -0.2" size="0.02 0.02 0.2" material="chequered"/>
     </body>
     <body name="arm/link 1" pos="0 0 0.2">
       <joint name="hinge" type="hinge" axis="0 0 1"/>
@@ -46,6 +50,7 @@ SCENE = """
 
 DRAWN = {  # entity path under world/scene -> the shape component expected there
     "world/floor": "Boxes3D:half_sizes", "table/top": "Boxes3D:half_sizes",
+    "table/leg": "Boxes3D:half_sizes",
     "arm_link_1/upper": "Capsules3D:radii", "hand/wrist": "Cylinders3D:radii",
     "hand/tip": "Ellipsoids3D:half_sizes", "hand/blob": "Ellipsoids3D:half_sizes",
     "hand/shard": "Mesh3D:vertex_positions", "carried/panel": "Boxes3D:half_sizes",
@@ -89,6 +94,11 @@ def _column(batches: list[pa.RecordBatch], name: str) -> list:
     return [v for b in batches if name in b.schema.names for v in b.column(name).to_pylist()]
 
 
+def _rgb(packed: int) -> tuple[int, int, int]:
+    """Red, green, blue (0-255) of rerun's packed 0xRRGGBBAA colour."""
+    return (packed >> 24) & 255, (packed >> 16) & 255, (packed >> 8) & 255
+
+
 def test_every_drawn_geom_is_recorded_with_its_shape_and_nothing_else(recorded):
     _, _, chunks, _ = recorded
     for path, component in DRAWN.items():
@@ -103,7 +113,10 @@ def test_every_drawn_geom_is_recorded_with_its_shape_and_nothing_else(recorded):
     assert _column(upper, "Capsules3D:radii") == [[pytest.approx(0.03)]]
     # the material's colour where the geom keeps the default grey (0xRRGGBBAA)
     colour = _column(chunks["/world/scene/table/top"], "Boxes3D:colors")[0][0]
-    assert colour >> 8 == (round(0.9 * 255) << 16) | (round(0.1 * 255) << 8) | round(0.1 * 255)
+    assert _rgb(colour) == pytest.approx((0.9 * 255, 0.1 * 255, 0.1 * 255), abs=1)
+    # a textured material's in one colour: the texture's mean (half red, half blue)
+    leg = _column(chunks["/world/scene/table/leg"], "Boxes3D:colors")[0][0]
+    assert _rgb(leg) == pytest.approx((127.5, 0, 127.5), abs=1)
 
 
 def test_the_moving_bodies_poses_replay_the_motion(recorded):

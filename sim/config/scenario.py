@@ -70,6 +70,15 @@ class RobotsConfig(Checked):
     bases: tuple[BasePose, ...] = ()
     start_radius_m: float = positive(1.8)
     move_base: bool = True
+    # The arm on each mobile base (sim/world/robot_model.py, docs/robots.md): "taskcam"
+    # (the project's UR5e-class arm), "menagerie:NAME" (MuJoCo Menagerie's robot NAME),
+    # or an MJCF file's path, relative to the scenario file.
+    model: str = checked(lambda v: v == "taskcam" or v.startswith("menagerie:")
+                         or v.endswith(".xml"),
+                         '"taskcam", "menagerie:NAME" or the path of an MJCF file (.xml)',
+                         "taskcam")
+    # the arm's site on its last link where the stereo head mounts (+z out of the flange)
+    mount: str = "attachment_site"
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ from sim.stages.corrector import PoseCorrector
 from sim.stages.exploration import explore
 from sim.stages.insertion import run_task
 from sim.stages.look import Look, look
+from sim.stages.overview import eye_position, framed_points
 from sim.stages.place import place
 from sim.stages.placement_result import Placement, pose_dict, pose_error
 from sim.stages.rating_problem import RatingProblem
@@ -43,6 +44,10 @@ from sim.stages.world import World, build_world
 from sim.world.render import Renderer, camera_pose
 
 VERSION = "0.1.0"
+# the recording's 3-D view is framed for a field of view this wide (deg), its picture
+# about 1.6 times as wide as high (the layout's world view): rerun's eye has no field of
+# view to set, so this is a choice of how large the scene first appears (the viewer zooms)
+EYE_FOVY_DEG = 25.0
 
 
 @dataclass(frozen=True)
@@ -158,8 +163,9 @@ class Episode:
         world = world if progress is None else replace(world, progress=progress)
         targets = world.scene.targets
         world.recorder.step(0)
+        framed = framed_points(world.model, world.data, [r.body_ids for r in world.scene.robots])
         world.recorder.scene(world.model, world.data, [r.name for r in world.scene.robots],
-                             self.scenario.task.enabled)
+                             self.scenario.task.enabled, eye_position(framed, EYE_FOVY_DEG, 1.6))
         world.recorder.targets([t.name for t in targets], np.array([t.position for t in targets]),
                                [t.radius for t in targets])
         with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:

@@ -234,7 +234,8 @@ class Exploration:
         """Reachable, collision-free camera poses looking into the target region."""
         m, scene, data = self.s.mapping, self.scene, self.data
         here = data.qpos.copy()
-        shoulder = data.body(f"{robot.name}/shoulder_link").xpos.copy()
+        pan = self.world.joint(f"{robot.name}/shoulder_pan").id  # turns the arm's first link
+        shoulder = data.xpos[self.world.jnt_bodyid[pan]].copy()
         camera_now = data.camera(robot.camera).xpos.copy()
         z_lo, z_hi = self.s.search.camera_z_m
         half = np.array(m.region_half_m)

@@ -26,24 +26,43 @@ FRUSTUM_RGBA = (0.1, 0.9, 0.3, 1.0)
 FILM_FPS = 15  # frames a second of simulated time
 
 
-def free_camera(model: mujoco.MjModel, points: np.ndarray, aspect: float) -> mujoco.MjvCamera:
-    """A free camera that frames ``points`` (n, 3; m) in a picture of ``aspect`` (width
-    over height), at the model's field of view."""
+def framing(points: np.ndarray, fovy_deg: float, aspect: float
+            ) -> tuple[np.ndarray, float, float]:
+    """Where a camera that frames ``points`` (n, 3; m) at a vertical field of view of
+    ``fovy_deg`` in a picture of ``aspect`` (width over height) looks (the points' box's
+    centre), how far it stands back from there (m) and its azimuth (deg, about +z from
+    +x: it looks along the direction the points spread least along)."""
     centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
     radius = max(float(np.linalg.norm(points - centre, axis=1).max()), 0.1) * MARGIN
     spread = points[:, :2] - centre[:2]
     if len(points) > 1 and np.ptp(spread, axis=0).max() > 1e-6:
         _, vectors = np.linalg.eigh(spread.T @ spread)
-        across = vectors[:, 0]  # the direction the points spread least along: look along it
+        across = vectors[:, 0]
     else:
         across = np.array([1.0, 0.0])
-    fovy = math.radians(float(model.vis.global_.fovy))
+    fovy = math.radians(fovy_deg)
     half = min(fovy / 2, math.atan(aspect * math.tan(fovy / 2)))  # the narrower half-angle
+    return centre, radius / math.sin(half), math.degrees(math.atan2(across[1], across[0]))
+
+
+def eye_position(points: np.ndarray, fovy_deg: float, aspect: float) -> tuple[np.ndarray,
+                                                                            np.ndarray]:
+    """The eye (m, world) of :func:`framing`'s camera, and the point it looks at."""
+    centre, distance, azimuth = framing(points, fovy_deg, aspect)
+    a, e = math.radians(azimuth), math.radians(ELEVATION_DEG)
+    forward = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+    return centre - distance * forward, centre
+
+
+def free_camera(model: mujoco.MjModel, points: np.ndarray, aspect: float) -> mujoco.MjvCamera:
+    """A free camera that frames ``points`` (n, 3; m) in a picture of ``aspect`` (width
+    over height), at the model's field of view (see :func:`framing`)."""
+    centre, distance, azimuth = framing(points, float(model.vis.global_.fovy), aspect)
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE
     cam.lookat[:] = centre
-    cam.distance = radius / math.sin(half)
-    cam.azimuth = math.degrees(math.atan2(across[1], across[0]))
+    cam.distance = distance
+    cam.azimuth = azimuth
     cam.elevation = ELEVATION_DEG
     return cam
 
@@ -112,10 +131,13 @@ class Overview:
             self.renderer.disable_segmentation_rendering()
 
 
-def framed_points(model: mujoco.MjModel, data: mujoco.MjData, bodies: list[int]
-                  ) -> np.ndarray:
-    """What a picture of the world frames: the drawn geoms of ``bodies`` (their centres,
-    and their bounding spheres' reach up and down), in the world as ``data`` has it."""
+def framed_points(model: mujoco.MjModel, data: mujoco.MjData,
+                  robots: list[frozenset[int]]) -> np.ndarray:
+    """What a picture of an episode frames: the drawn geoms of the robots (``robots``:
+    each one's body ids) and of the work-piece, their centres and their bounding
+    spheres' reach up and down, in the world as ``data`` has it (m)."""
+    workpiece = [b for b in range(model.nbody) if model.body(b).name.startswith("workpiece/")]
+    bodies = [b for r in robots for b in r] + workpiece
     geoms = np.flatnonzero(np.isin(model.geom_bodyid, bodies) & (model.geom_group < 3))
     centres, reach = data.geom_xpos[geoms], model.geom_rbound[geoms, None]
     up = np.array([0.0, 0.0, 1.0])

@@ -72,16 +72,17 @@ class Recorder:
         self.step(self.steps)
 
     def scene(self, model: mujoco.MjModel, data: mujoco.MjData, robots: list[str],
-              task: bool) -> None:
+              task: bool, eye: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """The world's geometry and its bodies where they are now, and the layout the
-        recording opens on (see :func:`layout`); later poses come with :meth:`bodies`."""
+        recording opens on (see :func:`layout`; ``eye``, the 3-D view's position and the
+        point it looks at); later poses come with :meth:`bodies`."""
         if self.film is not None:
             self.film.frame(data, None)
         if self.rec is None:
             return
         self.model = model
         self.geometry = log_geometry(self.rec, model, data)
-        self.rec.send_blueprint(layout(robots, task))
+        self.rec.send_blueprint(layout(robots, task, eye))
 
     def bodies(self, data: mujoco.MjData, time_s: float | None = None) -> None:
         """The moving bodies' poses now, on the timelines set (and a film's frame at
@@ -288,19 +289,28 @@ class Recorder:
             self.rec = None
 
 
-def layout(robots: list[str], task: bool) -> rrb.Blueprint:
-    """The layout a recording opens on: the 3-D world large; beside it each robot's left
-    image with what was found in it (during the task, its fitted edges; else, the
-    fiducials of its pose correction); below, the mapping's entropy and gains (``step``
-    timeline) and the task's displacement (``sim_time``)."""
+def layout(robots: list[str], task: bool, eye: tuple[np.ndarray, np.ndarray] | None = None
+           ) -> rrb.Blueprint:
+    """The layout a recording opens on: the 3-D world large (seen from ``eye``: its
+    position and the point it looks at, m; the depth images, drawn there as point clouds,
+    left out); beside it each robot's left image with what was found in it (during the
+    task, its fitted edges; else the fiducials of its pose correction); below, the
+    mapped region's entropy and the task's displacement. It opens on the ``sim_time``
+    timeline (the moves and the task)."""
     image = "task/left" if task else "camera/rgb"
     cameras = [rrb.Spatial2DView(origin=f"world/{r}/{image}", name=f"{r}: left image")
                for r in robots]
+    controls = None if eye is None else rrb.EyeControls3D(position=eye[0], look_target=eye[1],
+                                                          eye_up=[0.0, 0.0, 1.0])
+    world = rrb.Spatial3DView(origin="world", name="world", eye_controls=controls,
+                              contents=["+ $origin/**",
+                                        *(f"- world/{r}/camera/depth" for r in robots)])
+    plots = rrb.Horizontal(
+        rrb.TimeSeriesView(origin="mapping/region_entropy_bits",
+                           name="mapping: the region's entropy (bits a voxel)"),
+        rrb.TimeSeriesView(origin="task", name="task: displacement, measurement error (m)"))
     return rrb.Blueprint(
-        rrb.Vertical(
-            rrb.Horizontal(rrb.Spatial3DView(origin="world", name="world"),
-                           rrb.Vertical(*cameras), column_shares=[3, 1]),
-            rrb.Horizontal(rrb.TimeSeriesView(origin="mapping", name="mapping (bits)"),
-                           rrb.TimeSeriesView(origin="task", name="task (m)")),
-            row_shares=[3, 1]),
+        rrb.Vertical(rrb.Horizontal(world, rrb.Vertical(*cameras), column_shares=[3, 1]),
+                     plots, row_shares=[3, 1]),
+        rrb.TimePanel(timeline="sim_time"),
         collapse_panels=True)

@@ -25,10 +25,11 @@ def write_run(episode: Episode, out: Path, record: bool = True,
     s = episode.scenario
     out.mkdir(parents=True, exist_ok=True)
     world = episode.world
+    robots = [r.body_ids for r in world.scene.robots]
     film = None
     if video:  # framed on where the robots start and the work-piece: they stay within
         film = Film(out / "episode.mp4",
-                    Overview(world.model, framed_points(world.model, world.data, _framed(episode))))
+                    Overview(world.model, framed_points(world.model, world.data, robots)))
     recorder = Recorder(out / "run.rrd" if record else None,
                         recording_id=f"{s.name}-seed{s.seed}", unknown=record_unknown, film=film)
     try:
@@ -44,18 +45,11 @@ def write_run(episode: Episode, out: Path, record: bool = True,
     return summary
 
 
-def _framed(episode: Episode) -> list[int]:
-    """The bodies a picture of the episode frames: the robots' and the work-piece's."""
-    scene = episode.world.scene
-    model = scene.model
-    workpiece = [b for b in range(model.nbody) if model.body(b).name.startswith("workpiece/")]
-    return [b for r in scene.robots for b in r.body_ids] + workpiece
-
-
 def write_overview(episode: Episode, path: Path) -> None:
     """The world as the episode left it, from a free camera that frames the work-piece
     and the robots, every robot's camera's frustum drawn in (``path``, PNG)."""
     world = episode.world
+    robots = [r.body_ids for r in world.scene.robots]
     frusta = [opencv_pose(camera_pose(world.data, r.camera)) for r in world.scene.robots]
-    with Overview(world.model, framed_points(world.model, world.data, _framed(episode))) as view:
+    with Overview(world.model, framed_points(world.model, world.data, robots)) as view:
         save_png(path, view.render(world.data, frusta, world.pinhole))

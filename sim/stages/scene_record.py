@@ -41,13 +41,21 @@ def geom_path(model: mujoco.MjModel, geom: int) -> str:
 
 
 def geom_colour(model: mujoco.MjModel, geom: int) -> np.ndarray:
-    """The geom's RGBA (0-1) as MuJoCo draws it: its material's where it keeps the
-    default grey and has a material."""
-    rgba = model.geom_rgba[geom]
+    """The geom's RGBA (0-1) as MuJoCo draws it, in one colour: its material's where it
+    keeps the default grey and has a material, times the mean of the material's colour
+    texture if it has one (rerun's primitives take no texture)."""
+    rgba = np.asarray(model.geom_rgba[geom], float)
     material = model.geom_matid[geom]
-    if material >= 0 and np.allclose(rgba, [0.5, 0.5, 0.5, 1.0]):
-        return np.asarray(model.mat_rgba[material])
-    return np.asarray(rgba)
+    if material < 0 or not np.allclose(rgba, [0.5, 0.5, 0.5, 1.0]):
+        return rgba
+    rgba = np.asarray(model.mat_rgba[material], float)
+    texture = model.mat_texid[material, mujoco.mjtTextureRole.mjTEXROLE_RGB]
+    if texture >= 0 and model.tex_nchannel[texture] >= 3:
+        start = model.tex_adr[texture]
+        size = model.tex_height[texture] * model.tex_width[texture] * model.tex_nchannel[texture]
+        texels = model.tex_data[start:start + size].reshape(-1, model.tex_nchannel[texture])
+        rgba = rgba * np.concatenate([texels[:, :3].mean(axis=0) / 255.0, [1.0]])
+    return rgba
 
 
 def _shape(model: mujoco.MjModel, geom: int, rgba: np.ndarray) -> rr.AsComponents | None:

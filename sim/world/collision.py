@@ -132,8 +132,14 @@ def _pairs(a: list[int], b: list[int],
 
 
 def _neighbours(model: mujoco.MjModel, g: int, h: int) -> bool:
-    bg, bh = model.geom_bodyid[g], model.geom_bodyid[h]
-    return bool(bg == bh or model.body_parentid[bg] == bh or model.body_parentid[bh] == bg)
+    """Whether two geoms' bodies are neighbours as MuJoCo's contact filter has them: the
+    same rigid piece (bodies welded together count as one, e.g. a stereo head bolted to
+    the last link) or a piece and its parent piece, whose proxies overlap around the
+    joint between them by construction."""
+    wg, wh = model.body_weldid[model.geom_bodyid[g]], model.body_weldid[model.geom_bodyid[h]]
+    parent_g = model.body_weldid[model.body_parentid[wg]]
+    parent_h = model.body_weldid[model.body_parentid[wh]]
+    return bool(wg == wh or parent_g == wh or parent_h == wg)
 
 
 def clearance(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot,

@@ -12,10 +12,10 @@ import numpy as np
 from calibration.targets import Target
 from sim.config.scenario import Scenario
 from sim.config.schema import ScenarioError
+from sim.world.robot_model import camera_robot
 from sim.world.textures import as_files, link_files, paint
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
-ROBOT_XML = MODELS_DIR / "camera_robot.xml"
 WORKPIECE_XML = MODELS_DIR / "workpiece.xml"
 PANEL_XML = MODELS_DIR / "panel.xml"
 OBSTACLES_XML = MODELS_DIR / "obstacles.xml"
@@ -145,7 +145,23 @@ class Scene:
         with as_files(self.spec, self.textures):
             self.spec.compile()  # to_xml needs a compiled spec; self.model stays as it was
             xml = str(self.spec.to_xml())
-        return link_files(xml, self.textures)
+        xml, files = link_files(xml, self.textures)
+        return copied_assets(xml, self.spec, files)
+
+
+def copied_assets(xml: str, spec: mujoco.MjSpec, files: dict[str, bytes]
+                  ) -> tuple[str, dict[str, bytes]]:
+    """The XML with every mesh or texture file read from an absolute path (an arm brought
+    in: sim/world/robot_model.py) read instead from a copy beside it, under ``assets/``,
+    and those copies added to ``files``."""
+    for asset in [*spec.meshes, *spec.textures]:
+        source = Path(asset.file) if asset.file else None
+        if source is None or not source.is_absolute():
+            continue
+        copy = f"assets/{source.parent.name}/{source.name}"
+        xml = xml.replace(f'file="{asset.file}"', f'file="{copy}"')
+        files[copy] = source.read_bytes()
+    return xml, files
 
 
 def save_scene(directory: Path, xml: str, files: dict[str, bytes],
@@ -251,7 +267,7 @@ def _robots(spec: mujoco.MjSpec, s: Scenario) -> list[float]:
     """Attach the robots; returns the start configuration of each, concatenated."""
     start: list[float] = []
     for i, base in enumerate(s.base_poses()):
-        robot = mujoco.MjSpec.from_file(str(ROBOT_XML))
+        robot, arm_home = camera_robot(s)
         half = s.camera.baseline_m / 2
         for side, sign in (("left", -1.0), ("right", 1.0)):
             cam, site = robot.camera(side), robot.site(f"{side}_optical")
@@ -259,10 +275,9 @@ def _robots(spec: mujoco.MjSpec, s: Scenario) -> list[float]:
             cam.resolution = [s.camera.width, s.camera.height]
             cam.pos = [sign * half, cam.pos[1], cam.pos[2]]
             site.pos = list(cam.pos)
-        home = robot.key("home")
         yaw = math.remainder(math.radians(base.yaw_deg), 2 * math.pi)  # within the joint's range
-        start += [base.x, base.y, yaw, *list(home.qpos)[3:]]
-        robot.delete(home)  # the scene has keyframes of its own
+        start += [base.x, base.y, yaw, *arm_home]
+        robot.delete(robot.key("home"))  # the scene has keyframes of its own
         for body in robot.bodies:  # the arm's controller carries its weight
             body.gravcomp = 1.0
         spec.worldbody.add_frame().attach_body(robot.body("base"), f"r{i + 1}/", "")
