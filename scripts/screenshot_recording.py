@@ -2,13 +2,14 @@
 
     .venv/bin/python scripts/screenshot_recording.py runs/default/run.rrd docs/recording.png
 
-It serves the recording with ``rerun --serve-web`` on the loopback address, opens the
-viewer in Debian's ``chromium`` (headless, WebGL through SwiftShader, its software
-renderer), and drives the page through Chromium's DevTools protocol: it captures the page
-every few seconds and keeps the capture once several in a row agree, at least half a
-minute in, since under the software renderer the viewer takes 30-60 s to load the
-recording and draw (Chromium's own ``--screenshot`` flag captures the page before it has drawn).
-Needs ``chromium`` (``apt-get install chromium``); exit code 2 if it is missing.
+It serves rerun's web viewer with ``rerun --serve-web`` on the loopback address, and the
+recording beside it over HTTP; opens the viewer on it in Debian's ``chromium`` (headless,
+WebGL through SwiftShader, its software renderer); and drives the page through
+Chromium's DevTools protocol: it captures the page every few seconds and keeps the
+capture once several in a row agree, at least a minute and a half in, since under the software
+renderer the viewer takes 30-60 s to load the recording and draw (Chromium's own
+``--screenshot`` flag captures the page before it has drawn). Needs ``chromium``
+(``apt-get install chromium``); exit code 2 if it is missing.
 """
 
 from __future__ import annotations
@@ -21,9 +22,13 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+import urllib.parse
 import urllib.request
 from contextlib import ExitStack
+from functools import partial
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import cv2
@@ -33,8 +38,21 @@ from websockets.sync.client import ClientConnection, connect
 WIDTH, HEIGHT = 1600, 1000  # the browser window (px)
 SETTLE_S = 5.0  # between captures compared for stillness
 STILL = 0.5  # captures whose mean absolute difference (0-255) is below this agree
-STILL_CAPTURES = 4  # this many captures in a row agree: the viewer has loaded and drawn
-MIN_WAIT_S = 30.0  # the viewer pauses while it streams the recording in: no sooner
+# this many captures in a row agree: the viewer has loaded and drawn (while it decodes a
+# recording it may not redraw for a while, so stillness must last)
+STILL_CAPTURES = 8
+MIN_WAIT_S = 90.0  # and no sooner: it takes about this long to decode a 20 MB recording
+
+
+class CrossOrigin(SimpleHTTPRequestHandler):
+    """Files for the viewer's page, which is served from another port (CORS allows it)."""
+
+    def end_headers(self) -> None:
+        self.send_header("Access-Control-Allow-Origin", "*")
+        super().end_headers()
+
+    def log_message(self, format: str, *args: object) -> None:  # quiet
+        pass
 
 
 def free_port() -> int:
@@ -95,15 +113,22 @@ def screenshot(recording: Path, out: Path, timeout_s: float = 240.0) -> float:
     rerun = Path(sys.executable).parent / "rerun"
     if browser is None:
         raise FileNotFoundError("chromium not found: apt-get install chromium")
-    web, grpc, debug = free_port(), free_port(), free_port()
+    web, grpc, debug, served = free_port(), free_port(), free_port(), free_port()
     with ExitStack() as stack, tempfile.TemporaryDirectory() as profile:
         server = subprocess.Popen(
             [str(rerun), "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web),
-             "--port", str(grpc), str(recording)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+             "--port", str(grpc)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         stack.callback(server.kill)
+        # the recording itself over plain HTTP: the viewer reads it whole, at once, rather
+        # than as a stream it falls behind on under the software renderer
+        files = ThreadingHTTPServer(("127.0.0.1", served), partial(
+            CrossOrigin, directory=str(recording.resolve().parent)))
+        threading.Thread(target=files.serve_forever, daemon=True).start()
+        stack.callback(files.shutdown)
         wait_for(f"http://127.0.0.1:{web}/", 60)
-        url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"
+        wait_for(f"http://127.0.0.1:{served}/", 60)
+        url = (f"http://127.0.0.1:{web}/?url=http://127.0.0.1:{served}/"
+               f"{urllib.parse.quote(recording.name)}")
         chrome = subprocess.Popen(
             [browser, "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
              "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--no-first-run",

@@ -106,7 +106,9 @@ def file_values(path: Path) -> dict[str, Any]:
                 walk(v, f"{prefix}{k}.")
             else:
                 out[prefix + k] = v
-    walk(tomllib.loads(path.read_text()), "")
+    table = tomllib.loads(path.read_text())
+    table.pop("extends", None)  # the file it builds on, not a setting
+    walk(table, "")
     return out
 
 

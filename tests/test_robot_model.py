@@ -146,3 +146,46 @@ def test_a_saved_scene_with_menagerie_meshes_loads_elsewhere(tmp_path):
     model = mujoco.MjModel.from_xml_path(str(moved / "scene.xml"))
     assert model.nmesh == scene.model.nmesh > 0
     assert np.allclose(model.mesh_vert, scene.model.mesh_vert)
+
+
+@pytest.mark.slow
+def test_a_menagerie_camera_is_placed_moved_and_corrected(tmp_path):
+    """The whole way to a view on Menagerie's UR5e, unchanged code: mapping, placement,
+    the move in physics with its positioning errors, and the correction from fiducials
+    to within the bench's bounds (3 mm, 0.2 deg)."""
+    scenario = tmp_path / "one.toml"
+    scenario.write_text(f'[robots]\ncount = 1\nmodel = "{UR5E}"\n'
+                        'bases = [{ x = -1.9, y = -0.5, yaw_deg = 15.0 }]\n'
+                        "[task]\nenabled = false\n")
+    from sim.stages.episode import Episode
+
+    summary, _ = Episode(load_scenario(scenario)).run()
+    robot = summary["robots"][0]
+    assert robot["placed"] and robot["seen"], robot.get("refused")
+    assert robot["motion"]["contact_steps"] == 0
+    error = robot["correction"]["error_after"]
+    assert error["position_m"] <= 0.003 and error["orientation_deg"] <= 0.2, error
+
+
+def test_a_scenario_extends_another(tmp_path):
+    """``extends``: the file's tables over the base's, key by key; lists replaced; the
+    name its own; a cycle or a missing base refused naming the key."""
+    (tmp_path / "base.toml").write_text(
+        'name = "base"\nseed = 3\n[camera]\nwidth = 320\nheight = 240\n'
+        '[[obstacles]]\nshape = "box"\nposition = [0.9, 0.9, 0.1]\nsize = [0.1, 0.1, 0.1]\n')
+    (tmp_path / "child.toml").write_text('extends = "base.toml"\nobstacles = []\n'
+                                         "[camera]\nwidth = 400\n")
+    s = load_scenario(tmp_path / "child.toml")
+    assert (s.name, s.seed, s.camera.width, s.camera.height) == ("child", 3, 400, 240)
+    assert s.obstacles == ()
+    shipped = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" /
+                            "menagerie_ur5e.toml")
+    default = load_scenario()
+    assert dataclasses.replace(shipped, robots=default.robots, name=default.name,
+                               source=default.source) == default
+    (tmp_path / "a.toml").write_text('extends = "b.toml"\n')
+    (tmp_path / "b.toml").write_text('extends = "a.toml"\n')
+    (tmp_path / "c.toml").write_text('extends = "nowhere.toml"\n')
+    for name, said in (("a.toml", "a cycle"), ("c.toml", "no such file")):
+        with pytest.raises(ScenarioError, match=f"key 'extends': {said}"):
+            load_scenario(tmp_path / name)

@@ -405,10 +405,44 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<string>") -> Scenari
     return build(Scenario, data, "", source)
 
 
-def load_scenario(path: str | Path | None = None, seed: int | None = None) -> Scenario:
-    """Read a scenario file (the default one when ``path`` is None)."""
-    path = Path(path) if path is not None else DEFAULT_SCENARIO
+def scenario_table(path: Path, below: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """A scenario file's table over that of the file it ``extends`` (a path relative to
+    it): tables merge key by key, any other value (lists included) replaces the one
+    below; the name is never inherited. ``below``: the files that extend this one."""
     data = read_toml(path)
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    accepted = "the path of another scenario file (.toml), relative to this one"
+    if not isinstance(base, str) or not base.endswith(".toml"):
+        raise ScenarioError(str(path), "extends", base, accepted)
+    parent = (path.parent / base).resolve()
+    if parent == path.resolve() or parent in below:
+        raise ScenarioError(str(path), "extends", base, accepted + ", which does not "
+                            "extend this one in turn", problem="a cycle of files, with value")
+    if not parent.is_file():
+        raise ScenarioError(str(path), "extends", base, accepted,
+                            problem="no such file, with value")
+    under = scenario_table(parent, (*below, path.resolve()))
+    under.pop("name", None)
+    return _merged(under, data)
+
+
+def _merged(under: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(under)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merged(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def load_scenario(path: str | Path | None = None, seed: int | None = None) -> Scenario:
+    """Read a scenario file (the default one when ``path`` is None), over the file it
+    ``extends`` if it names one."""
+    path = Path(path) if path is not None else DEFAULT_SCENARIO
+    data = scenario_table(path)
     data.setdefault("name", path.stem)
     scenario = parse_scenario(data, str(path))
     if seed is not None:

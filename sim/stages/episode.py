@@ -45,9 +45,10 @@ from sim.world.render import Renderer, camera_pose
 
 VERSION = "0.1.0"
 # the recording's 3-D view is framed for a field of view this wide (deg), its picture
-# about 1.6 times as wide as high (the layout's world view): rerun's eye has no field of
-# view to set, so this is a choice of how large the scene first appears (the viewer zooms)
-EYE_FOVY_DEG = 25.0
+# about 1.6 times as wide as high (the layout's world view): about what rerun's viewer
+# shows (its eye's field of view cannot be set), so that the robots and the work-piece
+# fill the view as they open
+EYE_FOVY_DEG = 60.0
 
 
 @dataclass(frozen=True)

@@ -295,16 +295,22 @@ def layout(robots: list[str], task: bool, eye: tuple[np.ndarray, np.ndarray] | N
     position and the point it looks at, m; the depth images, drawn there as point clouds,
     left out); beside it each robot's left image with what was found in it (during the
     task, its fitted edges; else the fiducials of its pose correction); below, the
-    mapped region's entropy and the task's displacement. It opens on the ``sim_time``
-    timeline (the moves and the task)."""
+    mapped region's entropy and the task's displacement. It opens on the ``step``
+    timeline, where both plots have their data (each mapping view and each task step is
+    a step; the moves play on ``sim_time``); the occupancy grid, the rated candidates and
+    the occluder hulls start hidden."""
     image = "task/left" if task else "camera/rgb"
     cameras = [rrb.Spatial2DView(origin=f"world/{r}/{image}", name=f"{r}: left image")
                for r in robots]
-    controls = None if eye is None else rrb.EyeControls3D(position=eye[0], look_target=eye[1],
-                                                          eye_up=[0.0, 0.0, 1.0])
+    controls = None if eye is None else rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital, position=eye[0], look_target=eye[1], eye_up=[0.0, 0.0, 1.0])
     world = rrb.Spatial3DView(origin="world", name="world", eye_controls=controls,
                               contents=["+ $origin/**",
-                                        *(f"- world/{r}/camera/depth" for r in robots)])
+                                        *(f"- world/{r}/camera/depth" for r in robots)],
+                              # the map and the ratings hide the scene: shown on request
+                              overrides={path: rrb.EntityBehavior(visible=False) for path in
+                                         ["world/grid", *(f"world/{r}/{part}" for r in robots
+                                                          for part in ("candidates", "hulls"))]})
     plots = rrb.Horizontal(
         rrb.TimeSeriesView(origin="mapping/region_entropy_bits",
                            name="mapping: the region's entropy (bits a voxel)"),
@@ -312,5 +318,5 @@ def layout(robots: list[str], task: bool, eye: tuple[np.ndarray, np.ndarray] | N
     return rrb.Blueprint(
         rrb.Vertical(rrb.Horizontal(world, rrb.Vertical(*cameras), column_shares=[3, 1]),
                      plots, row_shares=[3, 1]),
-        rrb.TimePanel(timeline="sim_time"),
+        rrb.TimePanel(timeline="step"),
         collapse_panels=True)

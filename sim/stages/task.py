@@ -308,6 +308,7 @@ class InsertionTask(TaskImages):
                 watch.start(cam.robot.name, cam.believed[:3, 3], lying.pose)
         for step in range(cfg.max_steps):
             steps = step + 1
+            self.recorder.tick()  # each task step is a step of the recording's timeline
             t = t0 + 2.0 + STEP_S * step
             covariance: np.ndarray | None = None
             agreed = True  # the cameras fused agree within chance

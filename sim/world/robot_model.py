@@ -8,9 +8,9 @@ base to the flange, each with its range; a site on its last link (``robots.mount
 Menagerie's ``attachment_site`` by default) whose +z points out of the flange, where the
 stereo head mounts; and collision geoms (contype/conaffinity set) for its links. It is
 mounted on taskcam's base where taskcam's own arm stands (on ``arm_base``, which the
-suspension tilts), its root's frame the mount's; its joints take taskcam's names (``ROBOT_JOINTS``), its actuators are
-replaced by taskcam's position servos, and its start configuration is its own keyframe
-``home`` where it has one.
+suspension tilts), its root's frame the mount's; its joints take taskcam's names
+(``ROBOT_JOINTS``), its actuators are replaced by taskcam's position servos, and its
+start configuration is its own keyframe ``home`` where it has one.
 """
 
 from __future__ import annotations
