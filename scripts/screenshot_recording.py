@@ -17,7 +17,9 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -26,7 +28,7 @@ import threading
 import time
 import urllib.parse
 import urllib.request
-from contextlib import ExitStack
+from contextlib import ExitStack, suppress
 from functools import partial
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -53,6 +55,22 @@ class CrossOrigin(SimpleHTTPRequestHandler):
 
     def log_message(self, format: str, *args: object) -> None:  # quiet
         pass
+
+
+def started(stack: ExitStack, command: list[str]) -> subprocess.Popen[bytes]:
+    """``command`` started in a process group of its own, which ``stack`` ends whole:
+    the ``rerun`` entry point runs the viewer's server as a child, and Chromium runs many
+    processes, none of which may outlive the screenshot."""
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               start_new_session=True)
+
+    def stop() -> None:
+        with suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+
+    stack.callback(stop)
+    return process
 
 
 def free_port() -> int:
@@ -114,11 +132,9 @@ def screenshot(recording: Path, out: Path, timeout_s: float = 240.0) -> float:
     if browser is None:
         raise FileNotFoundError("chromium not found: apt-get install chromium")
     web, grpc, debug, served = free_port(), free_port(), free_port(), free_port()
-    with ExitStack() as stack, tempfile.TemporaryDirectory() as profile:
-        server = subprocess.Popen(
-            [str(rerun), "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web),
-             "--port", str(grpc)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        stack.callback(server.kill)
+    with tempfile.TemporaryDirectory() as profile, ExitStack() as stack:  # processes end first
+        started(stack, [str(rerun), "--serve-web", "--bind", "127.0.0.1",
+                        "--web-viewer-port", str(web), "--port", str(grpc)])
         # the recording itself over plain HTTP: the viewer reads it whole, at once, rather
         # than as a stream it falls behind on under the software renderer
         files = ThreadingHTTPServer(("127.0.0.1", served), partial(
@@ -129,13 +145,11 @@ def screenshot(recording: Path, out: Path, timeout_s: float = 240.0) -> float:
         wait_for(f"http://127.0.0.1:{served}/", 60)
         url = (f"http://127.0.0.1:{web}/?url=http://127.0.0.1:{served}/"
                f"{urllib.parse.quote(recording.name)}")
-        chrome = subprocess.Popen(
-            [browser, "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
-             "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--no-first-run",
-             f"--user-data-dir={profile}", f"--window-size={WIDTH},{HEIGHT}",
-             f"--remote-debugging-port={debug}", "--remote-allow-origins=*", url],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        stack.callback(chrome.kill)
+        started(stack, [browser, "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
+                        "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",
+                        "--no-first-run", f"--user-data-dir={profile}",
+                        f"--window-size={WIDTH},{HEIGHT}", f"--remote-debugging-port={debug}",
+                        "--remote-allow-origins=*", url])
         page = DevTools(stack.enter_context(connect(page_socket(debug), max_size=None,
                                                     open_timeout=30)))
         page.call("Page.enable")
