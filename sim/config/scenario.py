@@ -22,6 +22,7 @@ from sim.config.schema import (
     ScenarioError,
     build,
     checked,
+    merged_tables,
     nonnegative,
     positive,
     probability,
@@ -425,17 +426,7 @@ def scenario_table(path: Path, below: tuple[Path, ...] = ()) -> dict[str, Any]:
                             problem="no such file, with value")
     under = scenario_table(parent, (*below, path.resolve()))
     under.pop("name", None)
-    return _merged(under, data)
-
-
-def _merged(under: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    out = dict(under)
-    for key, value in over.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merged(out[key], value)
-        else:
-            out[key] = value
-    return out
+    return merged_tables(under, data)
 
 
 def load_scenario(path: str | Path | None = None, seed: int | None = None) -> Scenario:

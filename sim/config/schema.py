@@ -268,6 +268,18 @@ def build(cls: type[T], table: Mapping[str, Any], prefix: str, source: str) -> T
         raise exc.within(source, prefix, table) from None
 
 
+def merged_tables(under: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``over``'s keys over ``under``'s: tables merged key by key, any other value
+    (lists included) replacing the one below."""
+    out = dict(under)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merged_tables(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
 def read_toml(path: Path) -> dict[str, Any]:
     """A TOML file's table; ScenarioError if it cannot be read, is not UTF-8 text, or is
     not TOML."""

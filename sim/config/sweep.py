@@ -33,7 +33,14 @@ from typing import Any, Literal
 import numpy as np
 
 from sim.config.scenario import SCENARIO_DIR, Scenario, parse_scenario
-from sim.config.schema import Checked, ScenarioError, build, checked, read_toml
+from sim.config.schema import (
+    Checked,
+    ScenarioError,
+    build,
+    checked,
+    merged_tables,
+    read_toml,
+)
 
 Placement = Literal["rating", "biased_random", "information_gain"]
 
@@ -107,16 +114,6 @@ GENERATED = {"obstacles": "each trial generates its own at the sweep's densities
              "seed": "each trial is seeded from the sweep's seed, density and trial"}
 
 
-def _merge(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for key, value in overrides.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = value
-    return out
-
-
 def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     """Read a sweep file; ``trials`` overrides its trials per density. Raises
     ScenarioError naming the file and key of anything invalid."""
@@ -146,5 +143,5 @@ def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     base.setdefault("name", base_path.stem)
     parse_scenario(base, str(base_path))  # the base file's own errors name it
     source = f"{path} [overrides]"
-    scenario = parse_scenario(_merge(base, {**overrides, "obstacles": []}), source)
+    scenario = parse_scenario(merged_tables(base, {**overrides, "obstacles": []}), source)
     return Sweep(config, scenario, str(path))

@@ -265,22 +265,22 @@ def _obstacles(spec: mujoco.MjSpec, s: Scenario) -> None:
 
 def _robots(spec: mujoco.MjSpec, s: Scenario) -> list[float]:
     """Attach the robots; returns the start configuration of each, concatenated."""
+    robot, arm_home = camera_robot(s)  # built once; each base gets a copy
+    half = s.camera.baseline_m / 2
+    for side, sign in (("left", -1.0), ("right", 1.0)):
+        cam, site = robot.camera(side), robot.site(f"{side}_optical")
+        cam.fovy = s.camera.fovy_deg
+        cam.resolution = [s.camera.width, s.camera.height]
+        cam.pos = [sign * half, cam.pos[1], cam.pos[2]]
+        site.pos = list(cam.pos)
+    robot.delete(robot.key("home"))  # the scene has keyframes of its own
+    for body in robot.bodies:  # the arm's controller carries its weight
+        body.gravcomp = 1.0
     start: list[float] = []
     for i, base in enumerate(s.base_poses()):
-        robot, arm_home = camera_robot(s)
-        half = s.camera.baseline_m / 2
-        for side, sign in (("left", -1.0), ("right", 1.0)):
-            cam, site = robot.camera(side), robot.site(f"{side}_optical")
-            cam.fovy = s.camera.fovy_deg
-            cam.resolution = [s.camera.width, s.camera.height]
-            cam.pos = [sign * half, cam.pos[1], cam.pos[2]]
-            site.pos = list(cam.pos)
         yaw = math.remainder(math.radians(base.yaw_deg), 2 * math.pi)  # within the joint's range
         start += [base.x, base.y, yaw, *arm_home]
-        robot.delete(robot.key("home"))  # the scene has keyframes of its own
-        for body in robot.bodies:  # the arm's controller carries its weight
-            body.gravcomp = 1.0
-        spec.worldbody.add_frame().attach_body(robot.body("base"), f"r{i + 1}/", "")
+        spec.worldbody.add_frame().attach_body(robot.copy().body("base"), f"r{i + 1}/", "")
     return start
 
 
