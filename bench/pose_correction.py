@@ -1,17 +1,25 @@
-"""How well the episode corrects each camera's pose from natural fiducials (issue 6).
+"""How well and how fast the episode corrects each camera's pose from natural fiducials
+(issues 6 and 23).
 
-Runs the default scenario (errors and correction on) over seeds, and compares, against
-the simulator's truth, the camera pose before correction (the commanded one), after it
-with each estimator on the same fiducials (the paper's linear fit, Kabsch, SQPnP), and
-the bundle adjustment's own last pose. Prints medians, the worst case, and how many
-moves meet the target (3 mm and 0.2 degrees).
+Runs the default scenario (errors and correction on) over seeds with each tracker
+variant, on the same seeds in one run: ``taskcam`` (the scenario as it is), ``baseline``
+(the first tracker: a frame every 3 degrees or 3 cm of the camera's travel, SIFT in
+both images matched along the rows) and
+``orb`` (the scenario's tracker with ORB corners refined to sub-pixel instead of SIFT).
+For each it compares, against the simulator's truth, the camera pose before correction
+(the commanded one), after it with each estimator on the same fiducials (the paper's
+linear fit, Kabsch, SQPnP), and the bundle adjustment's own last pose; and the wall time
+of a move's correction by part, against each part's budget. The last lines give each
+variant's time per move over the baseline's.
 
-    .venv/bin/python bench/pose_correction.py [--seeds 12] [--workers 2]
+    .venv/bin/python bench/pose_correction.py [--seeds 12] [--workers 1] \
+        [--variants taskcam,baseline]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -30,62 +38,99 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import write_results
 
 TARGET_M, TARGET_DEG = 0.003, 0.2
+# [correction] keys of each variant over the default scenario's
+VARIANTS: dict[str, dict[str, Any]] = {
+    "taskcam": {},
+    "baseline": {"frames": "fixed", "detector": "sift", "stereo": "descriptors"},
+    "orb": {"detector": "orb"},
+}
+# Wall seconds a move's correction may spend on each part (issue 23: 1.5 s in all, one
+# worker): about five stereo frames of two renders, a segmentation and SIFT on the pair,
+# one bundle adjustment of them and the final estimate.
+BUDGET_S = {"render": 0.45, "features": 0.5, "track": 0.15, "bundle": 0.25, "estimate": 0.15}
 
 
-def one_seed(seed: int) -> list[dict[str, Any]]:
+def one_seed(job: tuple[str, int]) -> list[dict[str, Any]]:
     from sim.config.scenario import load_scenario
     from sim.stages.episode import Episode
 
-    episode = Episode(load_scenario(seed=seed))
+    variant, seed = job
+    scenario = load_scenario(seed=seed)
+    scenario = dataclasses.replace(scenario, correction=dataclasses.replace(
+        scenario.correction, **VARIANTS[variant]))
+    episode = Episode(scenario)
     start = time.perf_counter()
     summary, _ = episode.run()
     elapsed = time.perf_counter() - start
     rows = []
-    for robot in summary["robots"]:
-        c = robot.get("correction")
-        if c is None:
-            continue
-        errors = {"before": c["error_before"], "bundle": c.get("bundle_error"),
-                  c.get("estimator", "estimator"): c.get("error_after"),
-                  **c["other_estimators_error"]}
-        rows.append({"seed": seed, "robot": robot["name"], "frames": c["frames"],
-                     "located": c["frames_located"], "failed": c.get("failed"),
-                     "errors": errors, "correction_s": summary["timings_s"]["correction"],
-                     "episode_s": elapsed})
+    for robot in summary["robots"]:  # the move to each robot's first placement
+        c = robot["placements"][0].get("correction")
+        if c is not None:
+            errors = {"before": c["error_before"], "bundle": c.get("bundle_error"),
+                      c.get("estimator", "estimator"): c.get("error_after"),
+                      **c["other_estimators_error"]}
+            rows.append({"variant": variant, "seed": seed, "robot": robot["name"],
+                         "frames": c["frames"], "located": c["frames_located"],
+                         "failed": c.get("failed"), "errors": errors,
+                         "seconds": c.get("seconds", {}), "episode_s": elapsed})
     return rows
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=12)
-    parser.add_argument("--workers", type=int, default=2)
-    args = parser.parse_args()
-    with ProcessPoolExecutor(args.workers) as pool:
-        rows = [r for rs in pool.map(one_seed, range(args.seeds)) for r in rs]
-    print(f"{len(rows)} moves over {args.seeds} seeds of the default scenario")
+def report(variant: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Prints one variant's accuracy and time per move; returns its summary."""
+    print(f"\n{variant}: {len(rows)} moves")
     print(f"{'pose':<10} {'median mm':>10} {'median deg':>11} {'worst mm':>9} {'worst deg':>10}"
           f" {'within 3 mm & 0.2 deg':>22}")
-    summary = {}
+    out: dict[str, Any] = {}
     for name in ("before", "linear", "kabsch", "sqpnp", "bundle"):
         found = [r["errors"].get(name) for r in rows]
         pairs = np.array([(e["position_m"], e["orientation_deg"]) if e else (np.inf, np.inf)
                           for e in found])
         ok = int(np.sum((pairs[:, 0] <= TARGET_M) & (pairs[:, 1] <= TARGET_DEG)))
-        med = np.median(pairs, axis=0)
-        worst = pairs.max(axis=0)
-        summary[name] = {"median_mm": 1e3 * med[0], "median_deg": med[1],
-                         "worst_mm": 1e3 * worst[0], "worst_deg": worst[1], "within": ok}
+        med, worst = np.median(pairs, axis=0), pairs.max(axis=0)
+        out[name] = {"median_mm": 1e3 * med[0], "median_deg": med[1],
+                     "worst_mm": 1e3 * worst[0], "worst_deg": worst[1], "within": ok}
         print(f"{name:<10} {1e3 * med[0]:>10.2f} {med[1]:>11.3f} {1e3 * worst[0]:>9.2f} "
               f"{worst[1]:>10.3f} {ok:>14} of {len(rows)}")
-    seconds = sorted({(r["seed"], r["correction_s"]) for r in rows})
-    per_move = sum(s for _, s in seconds) / max(len(rows), 1)
-    print(f"correction: {per_move:.1f} s per move (frames "
+    seconds = {k: float(np.mean([r["seconds"].get(k, 0.0) for r in rows])) for k in BUDGET_S}
+    out["seconds_per_move"] = sum(seconds.values())
+    out["parts_s"] = seconds
+    print(f"per move: {out['seconds_per_move']:.2f} s (frames "
           f"{np.median([r['frames'] for r in rows]):.0f} median, "
           f"{sum(r['located'] for r in rows)} of {sum(r['frames'] for r in rows)} located)")
+    print("  part      mean s  budget s")
+    for k, v in seconds.items():
+        print(f"  {k:<9} {v:>6.2f} {BUDGET_S[k]:>9.2f}{'  over' if v > BUDGET_S[k] else ''}")
     for r in rows:
         if r["failed"]:
-            print(f"seed {r['seed']} {r['robot']}: failed: {r['failed']}")
-    write_results("pose_correction", rows, summary=summary, seconds_per_move=per_move)
+            print(f"  seed {r['seed']} {r['robot']}: {r['failed']}")
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=12)
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--variants", default="taskcam,baseline",
+                        help=f"comma-separated, of {', '.join(VARIANTS)}")
+    args = parser.parse_args()
+    variants = args.variants.split(",")
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        parser.error(f"--variants {','.join(unknown)}: accepted {', '.join(VARIANTS)}")
+    jobs = [(v, s) for v in variants for s in range(args.seeds)]
+    with ProcessPoolExecutor(args.workers) as pool:
+        rows = [r for rs in pool.map(one_seed, jobs) for r in rs]
+    print(f"the default scenario, seeds 0-{args.seeds - 1}, {args.workers} worker(s)")
+    summary = {v: report(v, [r for r in rows if r["variant"] == v]) for v in variants}
+    if "baseline" in summary:
+        base = summary["baseline"]["seconds_per_move"]
+        for v in variants:
+            if v != "baseline":
+                mine = summary[v]["seconds_per_move"]
+                print(f"{v}: {mine:.2f} s per move, baseline {base:.2f} s: "
+                      f"{base / max(mine, 1e-9):.1f}x faster")
+    write_results("pose_correction", rows, summary=summary)
 
 
 if __name__ == "__main__":

@@ -52,6 +52,11 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("db", type=Path, help="results database written by taskcam sweep")
     rep.add_argument("--out", type=Path,
                      help="directory for <db>.md, .csv, .png (default: beside the database)")
+    cmp = sub.add_parser("compare", help="two sweeps of the same scenes, cell by cell: the "
+                         "paired difference in success")
+    cmp.add_argument("first", type=Path, help="results database (e.g. with correction on)")
+    cmp.add_argument("second", type=Path, help="results database of the same scenes")
+    cmp.add_argument("--out", type=Path, help="write the comparison to this Markdown file")
     fig = sub.add_parser("figure7", help="the paper's Figure 7: RF over a planar world")
     fig.add_argument("--out", type=Path, default=Path("runs/figure7"),
                      help="directory for figure7_a.png, figure7_b.png, figure7.json")
@@ -147,6 +152,28 @@ def report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def compare(args: argparse.Namespace) -> int:
+    from sim.experiments.paired import compare as paired
+    from sim.experiments.paired import markdown
+
+    for key, db in (("<first>", args.first), ("<second>", args.second)):
+        if not db.is_file():
+            found = "a directory" if db.is_dir() else "no such file"
+            raise ResultsError(db, found, "a results database file", key)
+    if args.out is not None and args.out.is_dir():
+        raise ScenarioError("--out", "out", str(args.out), "a file path (this is a directory)")
+    try:
+        cells = paired(args.first, args.second)  # reads the databases only
+    except ResultsError as exc:
+        raise exc.given_as("<second>" if exc.path == args.second else "<first>") from None
+    text = markdown(cells, args.first.stem, args.second.stem)
+    print(text, end="")
+    if args.out is not None:
+        args.out.write_text(text)
+        _log(f"wrote {args.out}")
+    return EXIT_OK
+
+
 def figure7(args: argparse.Namespace) -> int:
     from sim.experiments.figure7 import figure7 as study
 
@@ -171,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
             return sweep(args)
         if args.command == "report":
             return report(args)
+        if args.command == "compare":
+            return compare(args)
         if args.command == "figure7":
             return figure7(args)
     except (ScenarioError, ResultsError) as exc:  # invalid input: a scenario, sweep or database

@@ -56,7 +56,7 @@ def _kinematic_move(corrector, scene, belief, world, robot, start, goal, erred_f
     world's joints off the commanded by ``erred_from`` at the start turning into
     ``erred_to`` at the goal; the corrector sees the rendered frames and the commanded
     joints, and starts from ``known`` (believed pose, sd) if given. The correction."""
-    corrector.begin(robot, start, known)
+    corrector.begin(robot, np.array([start, goal]), known)
     sample = corrector.on_sample(robot)
     for k, tau in enumerate(np.linspace(0, 1, 150)):
         progress = tau ** 3 * (10 - 15 * tau + 6 * tau ** 2)

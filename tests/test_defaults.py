@@ -21,12 +21,12 @@ from sim.config.scenario import (
     parse_scenario,
 )
 from sim.config.schema import convert
-from sim.config.sweep import load_sweep
+from sim.config.sweep import is_sweep_file, load_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 TABLE = ROOT / "docs" / "scenario.md"  # its section "## Keys"
 SHIPPED = sorted(SCENARIO_DIR.glob("*.toml"))
-SWEEPS = [p for p in SHIPPED if "scenario" in tomllib.loads(p.read_text())]
+SWEEPS = [p for p in SHIPPED if is_sweep_file(p)]
 SCENARIOS = [p for p in SHIPPED if p not in SWEEPS]
 # What a scenario file is about, its scene, rather than a setting with a default.
 LAYOUT = {"name", "robots.bases", "workpiece.targets", "obstacles"}

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import tomllib
-
 import mujoco
 import numpy as np
 import pytest
 
 from sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
+from sim.config.sweep import is_sweep_file, load_sweep
 from sim.world.scene import MODELS_DIR, ROBOT_JOINTS, build_scene
 
 
@@ -49,8 +48,7 @@ def test_robot_model_conventions():
 def test_scenario_builds_and_steps(path):
     """Every scenario file, and every sweep file's first trial (its base scenario with
     the overrides and generated obstacles), compiles and steps cleanly."""
-    if "densities" in tomllib.loads(path.read_text()):  # a sweep file
-        from sim.config.sweep import load_sweep
+    if is_sweep_file(path):
         from sim.experiments.runner import trial_specs
         from sim.experiments.trial import trial_scenario
 

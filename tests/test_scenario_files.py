@@ -5,13 +5,12 @@ database takes (slow). That each file's world builds and steps physics cleanly i
 tests/test_models.py's test_scenario_builds_and_steps (fast), over the same files.
 
 The files are found, not listed: a file added to scenarios/ is checked as what it is (a
-sweep file has ``methods``; anything else must be a scenario).
+sweep file has ``methods`` or ``densities``; anything else must be a scenario).
 """
 
 from __future__ import annotations
 
 import json
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +18,7 @@ import pytest
 from conftest import run_taskcam
 
 from sim.config.scenario import SCENARIO_DIR, load_scenario
-from sim.config.sweep import load_sweep
+from sim.config.sweep import is_sweep_file, load_sweep
 from sim.experiments.results import Results
 from sim.experiments.runner import trial_specs
 from sim.experiments.trial import run_trial
@@ -27,12 +26,8 @@ from sim.experiments.trial import run_trial
 FILES = sorted(SCENARIO_DIR.glob("*.toml"))
 
 
-def is_sweep(path: Path) -> bool:
-    return "methods" in tomllib.loads(path.read_text())
-
-
-SCENARIOS = [p for p in FILES if not is_sweep(p)]
-SWEEPS = [p for p in FILES if is_sweep(p)]
+SCENARIOS = [p for p in FILES if not is_sweep_file(p)]
+SWEEPS = [p for p in FILES if is_sweep_file(p)]
 
 
 def test_every_file_is_a_scenario_or_a_sweep():

@@ -291,11 +291,21 @@ class MotionConfig(Checked):
 class CorrectionConfig(Checked):
     """Correcting each camera's pose from natural fiducials after it moves (sec. 2.4):
     stereo frames are taken along the move, the fiducials tracked through them, and the
-    final pose estimated from the best-rated ones (eq. 8) by ``estimator``."""
+    final pose estimated from the best-rated ones (eq. 8) by ``estimator``. With
+    ``frames = "overlap"`` a frame is taken when fewer than ``frame_overlap`` of the last
+    located frame's fiducials are predicted findable; with ``"fixed"`` whenever the
+    camera turned ``frame_every_deg`` or moved ``frame_every_m``. A keypoint's right
+    pixel is found by ``stereo``: "correlation" along its row, or "descriptors" matched
+    to the right image's keypoints. ``frames = "fixed"`` and ``stereo = "descriptors"``
+    are the first tracker, kept for comparison."""
 
     enabled: bool = False
     estimator: Literal["linear", "kabsch", "sqpnp"] = "sqpnp"
     fiducials: int = checked(lambda v: 4 <= v <= 500, "an integer 4 to 500", 24)  # picked
+    detector: Literal["sift", "orb"] = "sift"
+    stereo: Literal["correlation", "descriptors"] = "correlation"
+    frames: Literal["overlap", "fixed"] = "overlap"
+    frame_overlap: float = checked(lambda v: 0 < v < 1, "a number between 0 and 1", 0.5)
     frame_every_deg: float = positive(3.0)  # a frame when the commanded camera turned
     frame_every_m: float = positive(0.03)  # ... or moved this much since the last
     features: int = checked(lambda v: 50 <= v <= 5000, "an integer 50 to 5000", 800)
@@ -407,14 +417,15 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<string>") -> Scenari
 
 
 def scenario_table(path: Path, below: tuple[Path, ...] = ()) -> dict[str, Any]:
-    """A scenario file's table over that of the file it ``extends`` (a path relative to
-    it): tables merge key by key, any other value (lists included) replaces the one
-    below; the name is never inherited. ``below``: the files that extend this one."""
+    """A scenario (or sweep) file's table over that of the file it ``extends`` (a path
+    relative to it, of a file of the same kind): tables merge key by key, any other value
+    (lists included) replaces the one below; the name is never inherited. ``below``: the
+    files that extend this one."""
     data = read_toml(path)
     base = data.pop("extends", None)
     if base is None:
         return data
-    accepted = "the path of another scenario file (.toml), relative to this one"
+    accepted = "the path of another file of its kind (.toml), relative to this one"
     if not isinstance(base, str) or not base.endswith(".toml"):
         raise ScenarioError(str(path), "extends", base, accepted)
     parent = (path.parent / base).resolve()

@@ -32,14 +32,13 @@ from typing import Any, Literal
 
 import numpy as np
 
-from sim.config.scenario import SCENARIO_DIR, Scenario, parse_scenario
+from sim.config.scenario import SCENARIO_DIR, Scenario, parse_scenario, scenario_table
 from sim.config.schema import (
     Checked,
     ScenarioError,
     build,
     checked,
     merged_tables,
-    read_toml,
 )
 
 Placement = Literal["rating", "biased_random", "information_gain"]
@@ -114,11 +113,18 @@ GENERATED = {"obstacles": "each trial generates its own at the sweep's densities
              "seed": "each trial is seeded from the sweep's seed, density and trial"}
 
 
+def is_sweep_file(path: str | Path) -> bool:
+    """Whether a TOML file (over the file it extends) is a sweep file: it has
+    ``methods`` or ``densities``; anything else is a scenario file."""
+    table = scenario_table(Path(path))
+    return "methods" in table or "densities" in table
+
+
 def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     """Read a sweep file; ``trials`` overrides its trials per density. Raises
     ScenarioError naming the file and key of anything invalid."""
     path = Path(path)
-    data = read_toml(path)
+    data = scenario_table(path)  # over the sweep file it extends, if it names one
     overrides = data.pop("overrides", {})
     if not isinstance(overrides, Mapping):
         raise ScenarioError(str(path), "overrides", overrides,
@@ -139,7 +145,7 @@ def load_sweep(path: str | Path, trials: int | None = None) -> Sweep:
     if not base_path.exists():
         raise ScenarioError(str(path), "scenario", config.scenario,
                             f"a scenario file beside the sweep file or in {SCENARIO_DIR.name}/")
-    base = read_toml(base_path)
+    base = scenario_table(base_path)
     base.setdefault("name", base_path.stem)
     parse_scenario(base, str(base_path))  # the base file's own errors name it
     source = f"{path} [overrides]"

@@ -104,6 +104,7 @@ class Correction:
     recovered_by: str = ""  # "wider search" or "retrace" when the first try failed
     tried: list[str] = field(default_factory=list)  # the recoveries tried, in order
     retrace_from: np.ndarray | None = None  # joints of the last located frame, to go back to
+    seconds: dict[str, float] = field(default_factory=dict)  # wall time by part
 
     @property
     def status(self) -> str:
@@ -165,6 +166,7 @@ class Correction:
                         "disparity_px": round(f.disparity, 3),
                         "rating": round(f.rating, 4), "track_length": len(f.track)}
                        for f in self.used]
+        out["seconds"] = self.seconds
         return out
 
 

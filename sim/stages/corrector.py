@@ -8,6 +8,7 @@ import math
 from collections.abc import Callable
 from dataclasses import replace
 
+import cv2
 import mujoco
 import numpy as np
 
@@ -25,10 +26,12 @@ from calibration.tracking import (
 from mapping import OccupancyGrid, Pinhole, mujoco_pose, opencv_pose
 from sim.config.scenario import CorrectionConfig
 from sim.stages.correction import Correction, UsedFiducial, distrust
+from sim.stages.timer import Timer
 from sim.world.render import Renderer, camera_pose
 from sim.world.scene import Robot, Scene
 
 WIDER = 3.0  # the final frame's second search: this many times search_px and max_jump
+OWN_DOWNSCALE = 4  # the robots' bodies are masked from a segmentation at 1/4 resolution
 
 
 class PoseCorrector:
@@ -40,7 +43,9 @@ class PoseCorrector:
         self.scene, self.belief, self.world = scene, belief, world
         self.renderer, self.pinhole, self.grid, self.cfg = renderer, pinhole, grid, config
         self.camera = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, baseline_m)
-        self.settings = TrackerSettings(features=config.features, search_px=config.search_px,
+        self.settings = TrackerSettings(detector=config.detector, stereo=config.stereo,
+                                        features=config.features,
+                                        search_px=config.search_px,
                                         pixel_sigma=config.pixel_sigma)
         self.finder = FeatureFinder(self.settings)
         self.robot_geoms = scene.robot_geoms()
@@ -55,6 +60,8 @@ class PoseCorrector:
         self._found: StereoFeatures | None = None  # the last frame's features
         self._retraced = False  # the move is being gone over again (frames twice as dense)
         self._start_sd = (0.0, 0.0)  # of the pose the move started from
+        self._goal_measured = np.eye(4)  # the camera pose the joints' goal puts it at
+        self._timer = Timer()  # wall seconds of this move's correction, by part
 
     # ------------------------------------------------------------ along the move
 
@@ -67,12 +74,16 @@ class PoseCorrector:
         mujoco.mj_camlight(self.scene.model, d)
         return opencv_pose(camera_pose(d, robot.camera))
 
-    def begin(self, robot: Robot, start_joints: np.ndarray,
+    def begin(self, robot: Robot, path: np.ndarray,
               start: tuple[np.ndarray, tuple[float, float]] | None = None) -> None:
-        """The first frame, at the pose before the move: ``start`` (the camera pose the
-        robot believes, MuJoCo convention, and its standard deviation in m and deg), or
-        where the joints put it when no move has made an error yet."""
+        """The first frame of a move along ``path`` (k, 9 joints), at the pose before it:
+        ``start`` (the camera pose the robot believes, MuJoCo convention, and its standard
+        deviation in m and deg), or where the joints put it when no move has made an
+        error yet."""
         self._tracker = FiducialTracker(self.camera, self.settings)
+        self._timer = Timer()
+        start_joints = path[0]
+        self._goal_measured = self.nominal_pose(robot, path[-1])
         measured = self.nominal_pose(robot, start_joints)  # frames are predicted from it
         T = measured if start is None else opencv_pose(start[0])
         self._start_sd = (0.0, 0.0) if start is None else start[1]
@@ -85,32 +96,59 @@ class PoseCorrector:
 
     def on_sample(self, robot: Robot) -> Callable[[float, np.ndarray], None]:
         """A callback for the mover, given the measured joints: a frame whenever the
-        camera has moved enough since the last one."""
-        cfg = self.cfg
+        view is predicted to need one (:meth:`_due`)."""
 
         def sample(t: float, measured: np.ndarray) -> None:
             self._joints = np.array(measured, copy=True)
             T = self.nominal_pose(robot, measured)
-            last = self._last_measured
-            denser = 2.0 if self._retraced else 1.0
-            if (rotation_deg(last, T) >= cfg.frame_every_deg / denser
-                    or np.linalg.norm(T[:3, 3] - last[:3, 3]) >= cfg.frame_every_m / denser):
+            if self._due(T):
                 self._frame(robot, T)
         return sample
+
+    def _due(self, T_measured: np.ndarray) -> bool:
+        """Whether the camera, where the joints put it, needs a frame. With ``frames =
+        "overlap"``: when fewer than ``frame_overlap`` of the last located frame's
+        fiducials are predicted findable from the predicted pose (after a frame that was
+        not located, only once the camera has also moved the fixed rule's step, so that a
+        lost view is not retried at every sample), and at the fixed rule's step while the
+        view shares that much with the goal's: the fiducials the final pose is estimated
+        from are then measured from many views, which their positions average (each
+        frame's pixel noise is its own). With ``"fixed"``: when it has turned
+        ``frame_every_deg`` or moved ``frame_every_m`` since the last frame. On a retrace
+        frames are twice as dense."""
+        assert self._tracker is not None, "begin() first"
+        cfg, last = self.cfg, self._last_measured
+        denser = 2.0 if self._retraced else 1.0
+        stepped = (rotation_deg(last, T_measured) >= cfg.frame_every_deg / denser
+                   or np.linalg.norm(T_measured[:3, 3] - last[:3, 3]) >= cfg.frame_every_m / denser)
+        if cfg.frames == "fixed":
+            return bool(stepped)
+        if not self._tracker.frames[-1].located and not stepped:
+            return False
+        wanted = 1 - (1 - cfg.frame_overlap) / denser
+        size = (self.pinhole.width, self.pinhole.height)
+        if self._tracker.overlap(self._predict(T_measured), size) < wanted:
+            return True
+        return bool(stepped) and self._tracker.overlap(
+            self._predict(self._goal_measured), size) >= cfg.frame_overlap
+
+    def _predict(self, T_measured: np.ndarray) -> np.ndarray:
+        """The camera's g01 predicted for the joints' camera pose ``T_measured``: the last
+        located frame's, moved as the joints say since."""
+        motion = invert(self._located_measured) @ T_measured
+        return invert(invert(self._last_located) @ motion)
 
     def _frame(self, robot: Robot, T_measured: np.ndarray, wider: float | None = None) -> bool:
         """Takes a frame (or, ``wider``, tracks the last again that much further afield);
         whether it was located."""
         assert self._tracker is not None, "begin() first"
-        # the last located pose, moved as the joints say since
-        motion = invert(self._located_measured) @ T_measured
-        predicted = invert(invert(self._last_located) @ motion)
+        predicted = self._predict(T_measured)
         if wider is None:
             self._found = self._look(robot)
-            frame = self._tracker.add(self._found, predicted)
-        else:
-            assert self._found is not None, "a frame first"
-            frame = self._tracker.retry(self._found, predicted, wider)
+        assert self._found is not None, "a frame first"
+        with self._timer("track"):
+            frame = (self._tracker.add(self._found, predicted) if wider is None
+                     else self._tracker.retry(self._found, predicted, wider))
         self._last_measured = T_measured
         if frame.located:
             self._last_located, self._located_measured = frame.g01, T_measured
@@ -133,14 +171,26 @@ class PoseCorrector:
 
     def _look(self, robot: Robot) -> StereoFeatures:
         r, d = self.renderer, self.world
-        left, right = r.rgb(d, robot.camera), r.rgb(d, robot.right_camera)
+        with self._timer("render"):
+            left, right = r.rgb(d, robot.camera), r.rgb(d, robot.right_camera)
+            own = self._own(robot.camera)
         self._last_left = left
-        # a right keypoint on a robot can only pair with a left one there, already out
-        return self.finder.stereo(left, right, self._own(robot.camera))
+        with self._timer("features"):
+            # a right keypoint on a robot can only pair with a left one there, already out
+            return self.finder.stereo(left, right, own)
 
     def _own(self, camera: str) -> np.ndarray:
-        seen = self.renderer.segmentation(self.world, camera)
-        return (seen >= 0) & self.robot_geoms[np.maximum(seen, 0)]
+        """The robots' bodies in ``camera``'s image (h, w bool), from a segmentation at
+        1/OWN_DOWNSCALE of the resolution grown by a block (a body's edge may lie anywhere
+        in a block): keypoints are kept farther than that from them anyway."""
+        k = OWN_DOWNSCALE
+        seen = self.renderer.segmentation(self.world, camera, downscale=k)
+        coarse = ((seen >= 0) & self.robot_geoms[np.maximum(seen, 0)]).astype(np.uint8)
+        grown = cv2.dilate(coarse, np.ones((3, 3), np.uint8))
+        full = np.zeros((self.pinhole.height, self.pinhole.width), bool)
+        fine = np.repeat(np.repeat(grown, k, axis=0), k, axis=1).astype(bool)
+        full[:fine.shape[0], :fine.shape[1]] = fine
+        return full
 
     # ------------------------------------------------------------ at the goal
 
@@ -148,7 +198,13 @@ class PoseCorrector:
         """The last frame, at the goal after settling; the corrected pose from it. If the
         frame cannot be located even by a wider search, the result has ``retrace_from``
         (the joints to go back to) unless ``last_try``; :meth:`retrace` then prepares the
-        way back and forth, and ``finish`` is called again."""
+        way back and forth, and ``finish`` is called again. ``seconds`` holds the wall
+        time of the move's correction so far, by part (render, features, track, bundle,
+        estimate)."""
+        out = self._finish(robot, last_try)
+        return replace(out, seconds=self._timer.rounded(4))
+
+    def _finish(self, robot: Robot, last_try: bool) -> Correction:
         tracker = self._tracker
         assert tracker is not None, "begin() first"
         tried = ["wider search", "retrace"] if self._retraced else []
@@ -169,13 +225,22 @@ class PoseCorrector:
         self._tracker = None
         if not located:
             return out
-        bundle, frames, kept = tracker.solve()
+        with self._timer("bundle"):
+            bundle, frames, kept = tracker.solve()
         cov = bundle.pose_cov[-1]
         out = replace(out, bundle_rms_px=bundle.rms_px,
                       bundle_pose=mujoco_pose(invert(bundle.poses[-1])),
                       pose_sd=(float(np.sqrt(np.trace(cov[3:, 3:]))),
                                math.degrees(float(np.sqrt(np.trace(cov[:3, :3]))))))
-        candidates, filters, ids = self._rated(frames, bundle.poses, bundle.pose_cov, kept)
+        with self._timer("estimate"):
+            return self._estimate(out, tracker, bundle.poses, bundle.pose_cov, frames, kept)
+
+    def _estimate(self, out: Correction, tracker: FiducialTracker, poses: list[np.ndarray],
+                  pose_cov: list[np.ndarray], frames: list[Frame], kept: np.ndarray
+                  ) -> Correction:
+        """The final pose from the final frame's best-rated fiducials (eq. 8, 10-12), by
+        the scenario's estimator and, for comparison, the others."""
+        candidates, filters, ids = self._rated(frames, poses, pose_cov, kept)
         chosen = pick(candidates, self.cfg.fiducials)
         if not chosen:
             return replace(out, reason="no fiducial of the final frame was seen before")

@@ -29,7 +29,7 @@ def move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector 
     frames: Callable[[float, np.ndarray], None] | None = None
     if corrector is not None:
         with timer("correction"):
-            corrector.begin(robot, path[0], world.at_rest(robot))
+            corrector.begin(robot, path, world.at_rest(robot))
         frames = corrector.on_sample(robot)
 
     framing = 0.0  # wall time (s) spent on frames during the move

@@ -1,0 +1,137 @@
+"""The fiducial tracker's parts (issue 23): stereo disparities by correlation along the
+row against shifts made by hand, and the predicted overlap that decides when a frame is
+taken against geometry worked out by hand."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from calibration.ekf import StereoCamera
+from calibration.pose import invert
+from calibration.tracking import (
+    SCALE,
+    SCALE_KEPT,
+    TURN_DEG,
+    TURN_KEPT,
+    FeatureFinder,
+    TrackerSettings,
+    predicted_overlap,
+    row_disparities,
+)
+
+CAMERA = StereoCamera(400.0, 400.0, 320.0, 240.0, 0.12)
+SIZE = (640, 480)
+
+
+def _texture(seed: int, shape: tuple[int, int] = (480, 640)) -> np.ndarray:
+    """Smooth random texture, 8-bit: noise blurred to blobs a few pixels across."""
+    noise = np.random.default_rng(seed).uniform(0, 255, shape).astype(np.float32)
+    return cv2.normalize(cv2.GaussianBlur(noise, (0, 0), 2.0), None, 0, 255,
+                         cv2.NORM_MINMAX).astype(np.uint8)
+
+
+def _shifted(image: np.ndarray, disparity: float) -> np.ndarray:
+    """The image as a right camera sees a plane ``disparity`` px away: moved left."""
+    shift = np.float32([[1, 0, -disparity], [0, 1, 0]])
+    return cv2.warpAffine(image, shift, image.shape[::-1], flags=cv2.INTER_CUBIC,
+                          borderMode=cv2.BORDER_REFLECT)
+
+
+@pytest.mark.parametrize("disparity", [12.0, 37.3, 80.55])
+def test_row_disparities_recover_a_sub_pixel_shift(disparity):
+    left = _texture(1)
+    right = _shifted(left, disparity)
+    pts = np.random.default_rng(2).uniform([100, 40], [600, 440], (200, 2))
+    d = row_disparities(left, right, pts, TrackerSettings())
+    found = np.isfinite(d)
+    assert found.mean() > 0.9
+    assert np.median(np.abs(d[found] - disparity)) < 0.05
+    assert np.max(np.abs(d[found] - disparity)) < 0.3
+
+
+def test_row_disparities_refuse_a_flat_patch_and_a_shift_beyond_the_range():
+    left = _texture(3)
+    left[200:280, 300:380] = 128  # no texture: the correlation has no peak
+    right = _shifted(left, 20.0)
+    d = row_disparities(left, right, np.array([[340.0, 240.0]]), TrackerSettings())
+    assert np.isnan(d[0])
+    far = _shifted(_texture(4), 200.0)  # beyond max_disparity_px (160)
+    d = row_disparities(_texture(4), far, np.array([[400.0, 240.0]]), TrackerSettings())
+    assert not np.isfinite(d[0]) or abs(d[0] - 200.0) > 1.0
+
+
+@pytest.mark.parametrize("stereo, within_px", [("correlation", 0.05), ("descriptors", 0.2)])
+def test_stereo_features_pair_the_left_keypoints_with_their_disparity(stereo, within_px):
+    left = cv2.cvtColor(_texture(5), cv2.COLOR_GRAY2RGB)
+    right = cv2.cvtColor(_shifted(_texture(5), 25.0), cv2.COLOR_GRAY2RGB)
+    ignore = np.zeros((480, 640), bool)
+    ignore[:, :320] = True  # the left half is the robot's own body
+    found = FeatureFinder(TrackerSettings(stereo=stereo)).stereo(left, right, ignore)
+    assert len(found) > 50
+    assert np.all(found.z[:, 0] > 320)
+    assert np.median(np.abs(found.z[:, 2] - 25.0)) < within_px
+    assert found.descriptors.shape == (len(found), 128)
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """g01 (world to camera, OpenCV axes: z forward, y down) of a camera at ``eye``
+    looking at ``target``, its x axis level."""
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = np.column_stack([x, y, z]), eye
+    return invert(T)
+
+
+def _wall(n: int = 21) -> np.ndarray:
+    """Points on a 1 m x 0.6 m patch of the plane x = 0, centred on (0, 0, 1)."""
+    ys, zs = np.meshgrid(np.linspace(-0.5, 0.5, n), np.linspace(0.7, 1.3, n))
+    return np.column_stack([np.zeros(ys.size), ys.ravel(), zs.ravel()])
+
+
+def test_overlap_of_an_unchanged_view_is_whole_and_of_a_view_turned_away_none():
+    points = _wall()
+    here = _look_at(np.array([-1.5, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]))
+    assert predicted_overlap(CAMERA, SIZE, here, here, points) == pytest.approx(1.0)
+    away = _look_at(np.array([-1.5, 0.0, 1.0]), np.array([-3.0, 0.0, 1.0]))
+    assert predicted_overlap(CAMERA, SIZE, here, away, points) == 0.0
+
+
+def test_overlap_of_a_view_panned_halfway_off_the_wall():
+    """Panning about the camera's centre changes no point's viewing direction or
+    distance: the overlap is the share still inside the image, counted by hand."""
+    points = _wall()
+    eye = np.array([-1.5, 0.0, 1.0])
+    here = _look_at(eye, np.array([0.0, 0.0, 1.0]))
+    panned = _look_at(eye, np.array([0.0, 1.5, 1.0]))
+    uv = (points - eye) @ invert(panned)[:3, :3]  # camera-frame directions
+    u = CAMERA.fx * uv[:, 0] / uv[:, 2] + CAMERA.cx
+    v = CAMERA.fy * uv[:, 1] / uv[:, 2] + CAMERA.cy
+    inside = (u >= 8) & (u <= SIZE[0] - 8) & (v >= 8) & (v <= SIZE[1] - 8)
+    assert 0.2 < inside.mean() < 0.9
+    assert predicted_overlap(CAMERA, SIZE, here, panned, points) == pytest.approx(inside.mean())
+
+
+def test_overlap_falls_with_the_turn_and_the_distance_as_measured():
+    """One point straight ahead, seen again from a camera swung about it by a known
+    angle, or moved toward it by a known ratio: the overlap is the measured share
+    left (TURN_KEPT, SCALE_KEPT) at that angle and ratio."""
+    point = np.array([[0.0, 0.0, 1.0]])
+    here = _look_at(np.array([-1.0, 0.0, 1.0]), point[0])
+    for angle in (2.0, 7.0, 20.0, 40.0):
+        a = math.radians(angle)
+        eye = point[0] + np.array([-math.cos(a), math.sin(a), 0.0])
+        expected = float(np.interp(angle, TURN_DEG, TURN_KEPT))
+        assert predicted_overlap(CAMERA, SIZE, here, _look_at(eye, point[0]), point) \
+            == pytest.approx(expected, abs=1e-6)
+    for ratio in (1.1, 1.5, 2.5):
+        eye = point[0] + np.array([-1.0 / ratio, 0.0, 0.0])
+        expected = float(np.interp(ratio, SCALE, SCALE_KEPT))
+        assert predicted_overlap(CAMERA, SIZE, here, _look_at(eye, point[0]), point) \
+            == pytest.approx(expected, abs=1e-6)
