@@ -48,7 +48,7 @@ class TrackerSettings:
     """How fiducials are found and followed (pixels unless stated)."""
 
     detector: str = "sift"  # "sift" or "orb" (FAST corners refined to sub-pixel)
-    stereo: str = "correlation"  # right pixels by "correlation" along the row or "descriptors"
+    stereo: str = "descriptors"  # right pixels by "descriptors" or "correlation" along the row
     row_px: float = 1.0  # with "descriptors": a stereo match's rows differ by at most this
     features: int = 800  # keypoints per image at most
     contrast: float = 0.01  # SIFT contrast threshold (of intensities in [0, 1])
@@ -132,9 +132,9 @@ class FeatureFinder:
     def stereo(self, left: np.ndarray, right: np.ndarray, ignore_left: np.ndarray | None = None
                ) -> StereoFeatures:
         """Keypoints of the left image (RGB or gray) found again in the right one on the
-        same row, at a positive disparity: by correlation along the row
-        (:func:`row_disparities`), or with ``stereo = "descriptors"`` as the keypoint of
-        the right image whose descriptor matches (the first tracker's way).
+        same row, at a positive disparity: as the keypoint of the right image whose
+        descriptor matches, or with ``stereo = "correlation"`` by correlation along the
+        row (:func:`row_disparities`).
         ``ignore_left`` is a boolean mask of pixels not to use (the robots' own bodies: a
         right pixel on a robot can only pair with a left one there)."""
         gl = _gray(left)

@@ -296,14 +296,14 @@ class CorrectionConfig(Checked):
     located frame's fiducials are predicted findable; with ``"fixed"`` whenever the
     camera turned ``frame_every_deg`` or moved ``frame_every_m``. A keypoint's right
     pixel is found by ``stereo``: "correlation" along its row, or "descriptors" matched
-    to the right image's keypoints. ``frames = "fixed"`` and ``stereo = "descriptors"``
-    are the first tracker, kept for comparison."""
+    to the right image's keypoints. ``frames = "fixed"`` is the first tracker's rule,
+    kept for comparison."""
 
     enabled: bool = False
     estimator: Literal["linear", "kabsch", "sqpnp"] = "sqpnp"
     fiducials: int = checked(lambda v: 4 <= v <= 500, "an integer 4 to 500", 24)  # picked
     detector: Literal["sift", "orb"] = "sift"
-    stereo: Literal["correlation", "descriptors"] = "correlation"
+    stereo: Literal["correlation", "descriptors"] = "descriptors"
     frames: Literal["overlap", "fixed"] = "overlap"
     frame_overlap: float = checked(lambda v: 0 < v < 1, "a number between 0 and 1", 0.5)
     frame_every_deg: float = positive(3.0)  # a frame when the commanded camera turned
