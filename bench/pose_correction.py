@@ -75,7 +75,7 @@ def one_seed(job: tuple[str, int]) -> list[dict[str, Any]]:
                          "status": c.get("status"), "sd": c.get("sd"),
                          "frames": c["frames"], "located": c["frames_located"],
                          "failed": c.get("failed"), "errors": errors,
-                         "seconds": c.get("seconds", {}), "episode_s": elapsed})
+                         "seconds": c.get("timings_s", {}), "episode_s": elapsed})
     return rows
 
 

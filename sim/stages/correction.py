@@ -172,7 +172,7 @@ class Correction:
                         "disparity_px": round(f.disparity, 3),
                         "rating": round(f.rating, 4), "track_length": len(f.track)}
                        for f in self.used]
-        out["seconds"] = self.seconds
+        out["timings_s"] = self.seconds  # wall time by part
         return out
 
 
