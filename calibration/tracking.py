@@ -110,9 +110,11 @@ class FeatureFinder:
         if settings.detector == "sift":
             self.detector = cv2.SIFT_create(  # type: ignore[attr-defined]
                 nfeatures=settings.features, contrastThreshold=settings.contrast)
+            self.matcher = cv2.BFMatcher(cv2.NORM_L2)
         elif settings.detector == "orb":
             self.detector = cv2.ORB_create(  # type: ignore[attr-defined]
                 nfeatures=settings.features, fastThreshold=round(255 * settings.contrast))
+            self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
         else:
             raise ValueError(f"detector {settings.detector!r}: 'sift' or 'orb'")
 
@@ -157,8 +159,7 @@ class FeatureFinder:
         out = np.full(len(pts), np.nan)
         if dr is None or len(pr) < 2:
             return out
-        norm = cv2.NORM_HAMMING if desc.dtype == np.uint8 else cv2.NORM_L2
-        for m in cv2.BFMatcher(norm).knnMatch(desc, dr, k=2):
+        for m in self.matcher.knnMatch(desc, dr, k=2):
             if len(m) < 2 or m[0].distance > s.ratio * m[1].distance:
                 continue
             a, b = pts[m[0].queryIdx], pr[m[0].trainIdx]
@@ -331,7 +332,7 @@ class FiducialTracker:
         """The share of the last located frame's fiducials a frame at ``predicted``
         (g01) would find again (:func:`predicted_overlap`)."""
         last = next(f for f in reversed(self.frames) if f.located)
-        seen = np.array(self.fiducials.points)[list(last.observations)].reshape(-1, 3)
+        seen = np.array([self.fiducials.points[i] for i in last.observations]).reshape(-1, 3)
         return predicted_overlap(self.camera, size, last.g01, predicted, seen)
 
     def start(self, found: StereoFeatures, g01: np.ndarray) -> Frame:

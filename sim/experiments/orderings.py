@@ -102,10 +102,7 @@ def orderings_in(db: str | Path) -> list[Ordering]:
         for method, placement, secondary in results.db.execute(
                 "SELECT DISTINCT method, placement, secondary FROM outcomes ORDER BY method"):
             method_of.setdefault((placement, bool(secondary)), method)
-        success: dict[tuple[str, int, float], dict[int, bool]] = {}
-        for method, d, trial, tol, ok in results.db.execute(
-                "SELECT method, density_index, trial, tolerance, success FROM successes"):
-            success.setdefault((method, d, round(tol, 6)), {})[trial] = bool(ok)
+        success = results.successes()
 
     def trials(key: Key) -> dict[int, bool] | None:
         placement, secondary, density, tol = key

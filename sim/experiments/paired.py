@@ -96,11 +96,7 @@ def _successes(db: str | Path) -> tuple[dict[str, Any], dict[tuple[str, int, flo
             raise ResultsError(Path(results.path), "a results database without a sweep's "
                                "description", "a database written by taskcam sweep")
         sweep = {**sweep, "scenes": description.get("scenes")}  # the scene generator
-        out: dict[tuple[str, int, float], dict[int, bool]] = {}
-        for method, d, trial, tol, ok in results.db.execute(
-                "SELECT method, density_index, trial, tolerance, success FROM successes"):
-            out.setdefault((method, d, round(tol, 6)), {})[trial] = bool(ok)
-    return sweep, out
+        return sweep, results.successes()
 
 
 def compare(first: str | Path, second: str | Path) -> list[PairedCell]:

@@ -223,6 +223,15 @@ class Results:
                     [(*key, m["method"], float(tol), int(ok))
                      for tol, ok in m["success"].items()])
 
+    def successes(self) -> dict[tuple[str, int, float], dict[int, bool]]:
+        """Success by (method, density index, tolerance rounded to 6 digits), then by
+        trial."""
+        out: dict[tuple[str, int, float], dict[int, bool]] = {}
+        for method, d, trial, tol, ok in self.db.execute(
+                "SELECT method, density_index, trial, tolerance, success FROM successes"):
+            out.setdefault((method, d, round(tol, 6)), {})[trial] = bool(ok)
+        return out
+
     def rows(self, table: str) -> list[tuple[Any, ...]]:
         """Every row of ``table`` in key order (timings and the worker left out: they vary
     from run to run)."""
