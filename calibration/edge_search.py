@@ -6,10 +6,11 @@ object's colour region (calibration/edge_fit.py uses both)."""
 from __future__ import annotations
 
 import functools
+import math
 
 import cv2
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
+from scipy.special import ndtr
 
 from .edge_model import Boxes, Samples, StereoRig
 
@@ -64,23 +65,33 @@ MERGE_CONTRASTS = np.array([-1.0, -0.75, -0.5, -0.25, 0.25, 0.5, 0.75, 1.0])
 MERGE_PHASES = np.array([0.0, 0.25, 0.5, 0.75])
 
 
+def pixel_steps(edges: np.ndarray, n: int, blur_px: float) -> np.ndarray:
+    """Unit colour steps at ``edges`` (m, px) blurred by a Gaussian of sd ``blur_px``,
+    each pixel's mean over its area [j, j + 1) (m, n): the area under the blurred step,
+    integrated in closed form (the integral of the normal CDF is z CDF(z) + pdf(z))."""
+    z = np.arange(n + 1.0)[None, :] - np.asarray(edges, float)[:, None]
+    if blur_px == 0:
+        area = np.clip(z, 0.0, None)
+    else:
+        u = z / blur_px
+        area = blur_px * (u * ndtr(u) + np.exp(-0.5 * u * u) / math.sqrt(2 * math.pi))
+    return np.diff(area, axis=1)
+
+
 @functools.cache
 def _merge_table() -> np.ndarray:
     """RMS offset (px) of the step :func:`search_edges` finds from the true one, when
     another step lies a given distance away (searched at most halfway to it), per
     (blur, distance) of the tabulated ones."""
-    sub, n, own = 32, 48, 24.0  # samples per pixel, profile length (px), the edge (px)
+    n, own = 48, 24.0  # profile length (px), the edge (px)
     table = np.zeros((len(MERGE_BLURS_PX), len(MERGE_DISTANCES_PX)))
-    x = (np.arange(n * sub) + 0.5) / sub
     d, c, phase = (a.ravel() for a in np.meshgrid(MERGE_DISTANCES_PX, MERGE_CONTRASTS,
                                                   MERGE_PHASES, indexing="ij"))
     edge = own + phase
-    neighbour = np.where(d > 0, c, 0.0)[:, None] * (x > (edge + d)[:, None])
-    sharp = 100.0 * ((x > edge[:, None]) + neighbour)
+    contrast = np.where(d > 0, c, 0.0)[:, None]
     limits = np.where(d > 0, d / 2, np.inf)
     for i, blur in enumerate(MERGE_BLURS_PX):
-        fine = gaussian_filter1d(sharp, blur * sub, axis=1, mode="nearest") if blur > 0 else sharp
-        rows = fine.reshape(len(d), n, sub).mean(axis=2)  # each pixel's area
+        rows = 100.0 * (pixel_steps(edge, n, blur) + contrast * pixel_steps(edge + d, n, blur))
         image = np.repeat(rows.astype(np.float32)[:, :, None], 3, axis=2)
         pixels = np.column_stack([edge - 0.5, np.arange(len(d))])
         found = search_edges(image, pixels, np.tile([1.0, 0.0], (len(d), 1)), 3, limits)

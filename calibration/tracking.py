@@ -16,10 +16,12 @@ located from the fiducials it finds again:
    them gives the frame's pose, unless it jumps implausibly far from the prediction.
 
 Keypoints found again extend their fiducial's track; the others start new fiducials,
-triangulated from the frame, if it was located from ``min_seeding`` fiducials or more
-(a poorly located frame would seed a displaced copy of the scene). A frame where fewer
-than ``min_inliers`` agree is not located (the prediction stands in for it) and adds
-nothing. At the end a bundle
+triangulated from the frame: every located frame seeds, however few fiducials located it,
+since the bundle adjustment at the end re-estimates each new fiducial and the frame's pose
+from all their views (a frame located from a few, as the camera comes out of a view
+without texture, is what carries the track on into the next textured one). A frame where
+fewer than ``min_inliers`` agree is not located (the prediction stands in for it) and
+adds nothing. At the end a bundle
 adjustment (calibration/bundle.py) over the located frames refines every pose and every
 fiducial seen twice or more, the first pose held fixed: each fiducial is then
 triangulated over the camera's whole path, not just the head's baseline.
@@ -61,7 +63,6 @@ class TrackerSettings:
     search_px: float = 30.0  # around the predicted projection
     inlier_px: float = 2.0
     min_inliers: int = 8
-    min_seeding: int = 20  # a frame located from fewer starts no new fiducials
     max_jump_m: float = 0.03  # a located pose this far from the prediction is refused
     max_jump_deg: float = 2.0
     pixel_sigma: float = 0.3  # of a keypoint's position
@@ -371,8 +372,7 @@ class FiducialTracker:
         for j, i in pairs:
             frame.observations[int(i)] = found.z[j]
             self.fiducials.seen(int(i), found.descriptors[j], found.z[j])
-        if len(pairs) >= s.min_seeding:  # a well-located frame: its new fiducials are sound
-            self._new_fiducials(frame, found, {int(j) for j in pairs[:, 0]})
+        self._new_fiducials(frame, found, {int(j) for j in pairs[:, 0]})
         self.frames.append(frame)
         return frame
 

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from calibration.edge_fit import _covariance
-from calibration.edge_search import MERGE_CONTRASTS, MERGE_PHASES, merge_bias_px, search_edges
+from calibration.edge_search import (
+    MERGE_CONTRASTS,
+    MERGE_PHASES,
+    merge_bias_px,
+    pixel_steps,
+    search_edges,
+)
 
 UP = 8  # rendered at this many times the resolution, then averaged down (pixel area)
 
@@ -82,3 +88,24 @@ def test_a_merged_edge_widens_the_covariance_by_its_own_pull_by_hand():
     noise = 80 * 0.01 / 72
     expected = inverse @ (noise * J.T @ ((w ** 2)[:, None] * J) + prior) @ inverse
     assert np.allclose(plain, expected)
+
+
+@pytest.mark.parametrize("blur_px", [0.0, 0.4, 1.7])
+def test_blurred_steps_averaged_over_pixels_match_fine_sampling(blur_px):
+    """The closed-form pixel means of a blurred step against a step sampled 400 times a
+    pixel, blurred by a sampled Gaussian and averaged over each pixel."""
+    edges = np.array([10.0, 10.3, 17.77])
+    sub = 400
+    x = (np.arange(32 * sub) + 0.5) / sub
+    sharp = (x[None, :] > edges[:, None]).astype(float)
+    if blur_px > 0:
+        half = round(6 * blur_px * sub)
+        kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sub / blur_px) ** 2)
+        padded = np.pad(sharp, ((0, 0), (half, half)), mode="edge")  # the steps go on
+        sharp = np.array([np.convolve(row, kernel / kernel.sum(), mode="valid")
+                          for row in padded])
+    brute = sharp.reshape(len(edges), 32, sub).mean(axis=2)
+    exact = pixel_steps(edges, 32, blur_px)
+    assert exact.shape == (3, 32)
+    np.testing.assert_allclose(exact, brute, atol=2e-3)
+    np.testing.assert_allclose(exact[:, -1], 1.0, atol=1e-9)  # the step's far side

@@ -100,6 +100,13 @@ def test_each_sweep_files_first_trial_runs(path, tmp_path):
     for outcome in record["methods"]:
         assert outcome["success"], outcome  # a verdict at every tolerance
         assert all(isinstance(ok, bool) for ok in outcome["success"].values()), outcome
+        for robot in outcome["robots"]:  # each move's correction, where the sweep has them
+            moved = robot["placed"] and sweep.scenario.correction.enabled
+            assert bool(robot["corrections"]) == moved, robot
+            for c in robot["corrections"]:
+                assert c["status"] in ("corrected", "uncertain", "failed"), c
+                assert c["error_before"]["position_m"] > 0, c  # errors on: never exact
+                assert (c["error_after"] is None) == (c["status"] == "failed"), c
     db = tmp_path / "first.sqlite"
     with Results(db) as results:  # the record is one the database takes
         results.start(sweep.describe(), resume=False)

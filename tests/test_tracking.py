@@ -9,6 +9,7 @@ import math
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from calibration.ekf import StereoCamera
 from calibration.pose import invert
@@ -18,6 +19,8 @@ from calibration.tracking import (
     TURN_DEG,
     TURN_KEPT,
     FeatureFinder,
+    FiducialTracker,
+    StereoFeatures,
     TrackerSettings,
     predicted_overlap,
     row_disparities,
@@ -135,3 +138,46 @@ def test_overlap_falls_with_the_turn_and_the_distance_as_measured():
         expected = float(np.interp(ratio, SCALE, SCALE_KEPT))
         assert predicted_overlap(CAMERA, SIZE, here, _look_at(eye, point[0]), point) \
             == pytest.approx(expected, abs=1e-6)
+
+
+def _seen(g01: np.ndarray, points: np.ndarray, descriptors: np.ndarray,
+          rng: np.random.Generator) -> StereoFeatures:
+    """What a camera at g01 finds of ``points``: their pixels and disparities (0.1 px of
+    noise) and their descriptors."""
+    c = points @ g01[:3, :3].T + g01[:3, 3]
+    z = np.column_stack([CAMERA.fx * c[:, 0] / c[:, 2] + CAMERA.cx,
+                         CAMERA.fy * c[:, 1] / c[:, 2] + CAMERA.cy,
+                         CAMERA.fx * CAMERA.baseline / c[:, 2]])
+    return StereoFeatures(z + rng.normal(0.0, 0.1, z.shape), descriptors)
+
+
+def test_a_frame_located_from_a_few_fiducials_carries_the_track_to_a_new_view():
+    """The camera leaves the first view's fiducials: a middle frame finds only 10 of them
+    (and 100 new ones); the last frame sees only those new ones. The middle frame seeds
+    them, so the last one is located; the bundle puts it where it was, within the
+    uncertainty it reports (10 fiducials on a patch of a wall locate the middle frame only
+    loosely)."""
+    rng = np.random.default_rng(3)
+    first = np.column_stack([np.zeros(100), rng.uniform(-0.6, -0.2, 100),
+                             rng.uniform(0.7, 1.3, 100)])
+    second = first + [0.0, 0.8, 0.0]  # the wall further on
+    descriptors = rng.normal(size=(200, 128)).astype(np.float32)
+    descriptors *= 512 / np.linalg.norm(descriptors, axis=1, keepdims=True)
+    poses = [_look_at(np.array([-1.5, y, 1.0]), np.array([0.0, y, 1.0]))
+             for y in (-0.2, 0.0, 0.2)]
+    tracker = FiducialTracker(CAMERA, TrackerSettings())
+    tracker.start(_seen(poses[0], first, descriptors[:100], rng), poses[0])
+    few = np.r_[np.arange(10), 100 + np.arange(100)]
+    both = np.vstack([first, second])
+    middle = tracker.add(_seen(poses[1], both[few], descriptors[few], rng), poses[1])
+    assert middle.located and len(middle.observations) == 110
+    last = tracker.add(_seen(poses[2], second[:30], descriptors[100:130], rng), poses[2])
+    assert last.located and len(last.observations) == 30
+    bundle, frames, _ = tracker.solve()
+    assert len(frames) == 3
+    # the pose's parameters (rotation vector, translation of g01) against the truth's,
+    # by the bundle's covariance: under chi-square's 99.9th percentile for 6 (22.5)
+    params = [np.r_[Rotation.from_matrix(g[:3, :3]).as_rotvec(), g[:3, 3]]
+              for g in (bundle.poses[-1], poses[2])]
+    error = params[0] - params[1]
+    assert error @ np.linalg.solve(bundle.pose_cov[-1], error) < 22.5, error

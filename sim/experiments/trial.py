@@ -85,9 +85,19 @@ def _outcome(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str
                     "position": r["pose"]["position"],
                     # physics steps in contact over the robot's moves (none is the rule)
                     "contact_steps": sum((p.get("motion") or {}).get("contact_steps", 0)
-                                         for p in r.get("placements", []))} for r in robots],
+                                         for p in r.get("placements", [])),
+                    "corrections": [_correction(p["correction"]) for p in r.get("placements", [])
+                                    if p.get("correction")]} for r in robots],
         "time_s": round(seconds, 3),
     }
+
+
+def _correction(c: dict[str, Any]) -> dict[str, Any]:
+    """One move's pose correction, briefly: its status, and the camera's error against the
+    simulator's truth before (the commanded pose) and after (none if it failed)."""
+    return {"status": c["status"], "frames": c["frames"], "frames_located": c["frames_located"],
+            "error_before": c["error_before"], "error_after": c.get("error_after"),
+            "sd": c.get("sd")}
 
 
 def run_trial(spec: TrialSpec) -> dict[str, Any]:
