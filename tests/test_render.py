@@ -79,11 +79,13 @@ def test_gl_backend_respects_an_explicit_choice():
     assert resolve_gl_backend(dict()) in ("egl", "osmesa")
 
 
-def without_multisampling() -> tuple[mujoco.MjModel, mujoco.MjData, str, int, Pinhole]:
-    """The default scene without MSAA: model, data, the first robot's camera, its id and
-    pinhole."""
+def without_multisampling(samples: int = 0
+                          ) -> tuple[mujoco.MjModel, mujoco.MjData, str, int, Pinhole]:
+    """The default scene without MSAA (or with ``samples``): model, data, the first
+    robot's camera, its id and pinhole."""
     s = load_scenario()
-    scene = build_scene(dataclasses.replace(s, camera=dataclasses.replace(s.camera, samples=0)))
+    scene = build_scene(dataclasses.replace(s, camera=dataclasses.replace(s.camera,
+                                                                          samples=samples)))
     camera = scene.robots[0].camera
     model = scene.model
     return model, scene.make_data(), camera, model.camera(camera).id, camera_pinhole(model,
@@ -111,12 +113,14 @@ def test_colour_and_depth_from_one_render_equal_two_renders():
     assert skies >= 5 and below >= 3
 
 
-def test_a_window_renders_as_the_whole_image_does_there():
+@pytest.mark.parametrize("samples", [0, 4])
+def test_a_window_renders_as_the_whole_image_does_there(samples):
     """A window of a view, rendered alone through its part of the frustum, is the whole
-    render's: depth to float rounding (inf at the same pixels), colour to one grey level
-    at some texture edges (a few per cent of pixels). The whole image as a window is the
-    whole render, to the bit."""
-    model, data, camera, cam, pinhole = without_multisampling()
+    render's: depth to float rounding (inf at the same pixels), colour to four grey levels
+    where textures are sampled (under one on average; multisampled, a few pixels of its
+    border may differ more). The whole image as a window is the whole render, to the
+    bit; so is it, multisampled, when colour and depth come from two renders."""
+    model, data, camera, cam, pinhole = without_multisampling(samples)
     h, w = pinhole.height, pinhole.width
     rng = np.random.default_rng(1)
     rendered = 0
@@ -126,6 +130,9 @@ def test_a_window_renders_as_the_whole_image_does_there():
             model.cam_quat[cam] = Rotation.random(random_state=k).as_quat(scalar_first=True)
             mujoco.mj_forward(model, data)
             rgb, depth = r.rgb_and_depth(data, camera)
+            if samples:
+                assert np.array_equal(rgb, r.rgb(data, camera))
+                assert np.array_equal(depth, r.depth(data, camera))
             whole = r.rgb_and_depth(data, camera, (slice(0, h), slice(0, w)))
             assert np.array_equal(whole[0], rgb) and np.array_equal(whole[1], depth)
             r0, c0 = rng.integers(0, h // 2), rng.integers(0, w // 2)
@@ -133,11 +140,14 @@ def test_a_window_renders_as_the_whole_image_does_there():
                       slice(c0, c0 + rng.integers(8, w // 2)))
             part_rgb, part_depth = r.rgb_and_depth(data, camera, window)
             assert part_rgb.shape == rgb[window].shape and part_depth.shape == depth[window].shape
-            grey = np.abs(part_rgb.astype(int) - rgb[window])
-            assert grey.max() <= 1 and np.mean(grey.max(axis=-1) > 0) < 0.1
             seen = np.isfinite(depth[window])
+            # the sky box's texture may round differently: only the scene's geometry
+            grey = np.where(seen, np.abs(part_rgb.astype(int) - rgb[window]).max(axis=-1), 0)
+            inner = grey[1:-1, 1:-1] if samples else grey
+            assert inner.max() <= 4 and np.mean(grey) < 1.0
+            assert np.sum(grey > 4) <= 4
             assert np.array_equal(np.isfinite(part_depth), seen)
-            assert np.allclose(part_depth[seen], depth[window][seen], rtol=1e-5, atol=0)
+            assert np.allclose(part_depth[seen], depth[window][seen], rtol=1e-4, atol=0)
             rendered += int(seen.mean() > 0.5)
     assert rendered >= 6
 

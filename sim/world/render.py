@@ -66,6 +66,11 @@ def _narrow(scene: mujoco.MjvScene, width: int, height: int, rows: slice, cols: 
                           max(1, (rows.stop - rows.start) // downscale))
 
 
+# Scene flags a segmentation render draws with (colours by object, no lighting or
+# texture); mujoco.Renderer renders depth with them too (more precise far away), as here
+SEGMENT_FLAGS = (int(mujoco.mjtRndFlag.mjRND_SEGMENT), int(mujoco.mjtRndFlag.mjRND_IDCOLOR))
+
+
 class Renderer:
     """Offscreen renderer for cameras of one resolution. Use as a context manager.
 
@@ -125,33 +130,65 @@ class Renderer:
                       window: tuple[slice, slice] | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`rgb` and :meth:`depth` of one view, as those give them; of its ``window``
-        (rows, columns) only, if given. Without multisampling, for a perspective camera
-        above the floor, both come from one render: its depth buffer is then a depth
-        render's, except where the sky box is drawn, and that lies beyond all the scene's
-        geometry. A window is then all that is rendered, through the part of the camera's
-        frustum it sees: per pixel as the whole image's, to a grey level's rounding at
-        some texture edges (a few per cent of pixels). Otherwise, from two whole renders."""
-        r, m = self._r, self.model
+        (rows, columns) only, if given. A window is all that is rendered, through the part
+        of the camera's frustum it sees: per pixel as the whole image's, to four grey levels
+        where textures are sampled (under one on average) and, multisampled, a pixel or two
+        on its border. Without multisampling, for a perspective camera above the floor,
+        both come from one render: its depth buffer is then a depth render's, except where the
+        sky box is drawn, and that lies beyond all the scene's geometry. Otherwise (a
+        multisampled colour render's depth buffer is not a depth render's), from a colour
+        render and a depth render of the window."""
+        h, w = self._r.height, self._r.width
+        rows, cols = window or (slice(0, h), slice(0, w))
+        m = self.model
         perspective = mujoco.mjtProjection.mjPROJ_PERSPECTIVE
         reach = (None if m.vis.quality.offsamples
                  or m.cam_projection[m.camera(camera).id] != perspective
                  else _farthest_geometry(m, data, data.camera(camera).xpos))
-        if reach is None or reach >= self._sky / 2:
-            rgb, depth = self.rgb(data, camera), self.depth(data, camera)
-            return (rgb, depth) if window is None else (rgb[window], depth[window])
         start = time.perf_counter()
-        r.update_scene(data, camera)
-        rect = r._rect if window is None else _narrow(r.scene, r.width, r.height, *window)
-        if r._gl_context:
-            r._gl_context.make_current()
-        mujoco.mjr_render(rect, r.scene, r._mjr_context)
-        rgb = np.empty((rect.height, rect.width, 3), np.uint8)
-        depth_window = np.empty((rect.height, rect.width), np.float32)  # 1 near, 0 far
-        mujoco.mjr_readPixels(rgb, depth_window, rect, r._mjr_context)
-        depth = self._metric(depth_window)[::-1].copy()  # row 0 at the top
-        depth[depth > reach] = np.inf  # the sky box
+        if reach is None or reach >= self._sky / 2:
+            rect = self._draw(data, camera, rows, cols)
+            rgb = self._read_colour(rect)
+            rect = self._draw(data, camera, rows, cols, SEGMENT_FLAGS)
+            depth = self._read_depth(rect)
+            depth[depth >= self._sky] = np.inf
+        else:
+            rect = self._draw(data, camera, rows, cols)
+            rgb = self._read_colour(rect)
+            depth = self._read_depth(rect)
+            depth[depth > reach] = np.inf  # the sky box
         self.seconds += time.perf_counter() - start
-        return rgb[::-1].copy(), depth
+        return rgb, depth
+
+    def _draw(self, data: mujoco.MjData, camera: str, rows: slice, cols: slice,
+              flags: tuple[int, ...] = (), downscale: int = 1) -> mujoco.MjrRect:
+        """Renders the ``rows`` and ``cols`` of a camera's image (at 1/``downscale`` of
+        the resolution) with the scene's render ``flags`` also on; the viewport drawn."""
+        r = self._r
+        r.update_scene(data, camera)
+        scene = r.scene
+        rect = _narrow(scene, r.width, r.height, rows, cols, downscale)
+        saved = scene.flags.copy()
+        scene.flags[list(flags)] = 1
+        try:
+            if r._gl_context:
+                r._gl_context.make_current()
+            mujoco.mjr_render(rect, scene, r._mjr_context)
+        finally:
+            np.copyto(scene.flags, saved)
+        return rect
+
+    def _read_colour(self, rect: mujoco.MjrRect) -> np.ndarray:
+        """The drawn viewport's colours (h, w, 3) uint8, row 0 at the top."""
+        rgb = np.empty((rect.height, rect.width, 3), np.uint8)
+        mujoco.mjr_readPixels(rgb, None, rect, self._r._mjr_context)
+        return rgb[::-1].copy()
+
+    def _read_depth(self, rect: mujoco.MjrRect) -> np.ndarray:
+        """The drawn viewport's z-depth (h, w) float32 m, row 0 at the top."""
+        window = np.empty((rect.height, rect.width), np.float32)  # 1 near, 0 far
+        mujoco.mjr_readPixels(None, window, rect, self._r._mjr_context)
+        return self._metric(window)[::-1].copy()
 
     def _metric(self, window: np.ndarray) -> np.ndarray:
         """z-depth (m, float32) from a perspective camera's reversed-z window depth, as
@@ -179,22 +216,11 @@ class Renderer:
             ids[seg[..., 1] != int(mujoco.mjtObj.mjOBJ_GEOM)] = -1
             return ids
         start = time.perf_counter()
-        r.update_scene(data, camera)
+        rect = self._draw(data, camera, slice(0, r.height), slice(0, r.width),
+                          SEGMENT_FLAGS, downscale)
+        colour = self._read_colour(rect)
         scene = r.scene
-        flags = [int(mujoco.mjtRndFlag.mjRND_SEGMENT), int(mujoco.mjtRndFlag.mjRND_IDCOLOR)]
-        rect = _narrow(scene, r.width, r.height, slice(0, r.height), slice(0, r.width),
-                       downscale)
-        saved = scene.flags.copy()
-        scene.flags[flags] = 1
-        try:
-            if r._gl_context:
-                r._gl_context.make_current()
-            mujoco.mjr_render(rect, scene, r._mjr_context)
-        finally:
-            np.copyto(scene.flags, saved)
-        colour = np.empty((rect.height, rect.width, 3), np.uint8)
-        mujoco.mjr_readPixels(colour, None, rect, r._mjr_context)
-        segid = colour[::-1].astype(np.int32) @ np.array([1, 1 << 8, 1 << 16], np.int32)
+        segid = colour.astype(np.int32) @ np.array([1, 1 << 8, 1 << 16], np.int32)
         geoms = np.full(scene.ngeom + 1, -1, np.int32)  # segid 0: the background
         for g in scene.geoms[:scene.ngeom]:
             if g.segid >= 0 and g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
