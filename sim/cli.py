@@ -153,6 +153,7 @@ def report(args: argparse.Namespace) -> int:
 
 
 def compare(args: argparse.Namespace) -> int:
+    from sim.experiments import corrections
     from sim.experiments.paired import compare as paired
     from sim.experiments.paired import markdown
 
@@ -167,6 +168,9 @@ def compare(args: argparse.Namespace) -> int:
     except ResultsError as exc:
         raise exc.given_as("<second>" if exc.path == args.second else "<first>") from None
     text = markdown(cells, args.first.stem, args.second.stem)
+    if cells:  # where the first sweep corrected its cameras: what that left, by outcome
+        moves = corrections.markdown(args.first, args.second, min(c.tolerance for c in cells))
+        text += "\n" + moves if moves else ""
     print(text, end="")
     if args.out is not None:
         args.out.write_text(text)

@@ -9,6 +9,7 @@ import pytest
 from conftest import run_taskcam
 
 from sim.config.sweep import load_sweep
+from sim.experiments import corrections
 from sim.experiments.paired import compare, markdown, paired_interval
 from sim.experiments.results import Results, ResultsError
 
@@ -38,9 +39,26 @@ def test_interval_covers_the_true_difference_95_percent_of_the_time():
         assert 0.925 <= np.mean(held) <= 0.985, (probs, np.mean(held))
 
 
-def _db(path, loop_wins: dict[tuple[int, int], bool], seed: int = 0) -> None:
+def _robots(error: tuple[float, float] | str | None) -> list[dict]:
+    """Two robots' records: r1's move corrected to ``error`` (m, deg; None: failed), r2's
+    to 0.5 mm and 0.01 deg; none if ``error`` is "off" (a sweep without correction)."""
+    if error == "off":
+        return [{"name": "r1", "corrections": []}, {"name": "r2", "corrections": []}]
+
+    def move(e):
+        status = ("failed" if e is None else
+                  "corrected" if e[0] <= 0.003 and e[1] <= 0.2 else "uncertain")
+        after = None if e is None else {"position_m": e[0], "orientation_deg": e[1]}
+        return {"status": status, "error_after": after}
+    return [{"name": "r1", "corrections": [move((0.02, 1.0)), move(error)]},
+            {"name": "r2", "corrections": [move((0.0005, 0.01))]}]
+
+
+def _db(path, loop_wins: dict[tuple[int, int], bool], seed: int = 0,
+        errors: dict[tuple[int, int], tuple[float, float] | None] | None = None) -> None:
     """A results database of one method at two densities, 'optimal' succeeding at the
-    easy tolerance where ``loop_wins`` says."""
+    easy tolerance where ``loop_wins`` says; its cameras corrected to ``errors`` (by
+    trial; 1 mm and 0.05 deg where not given), or not corrected without it."""
     with Results(path) as r:
         r.start({"sweep": {"seed": seed, "densities": [0.05, 0.2],
                            "methods": [{"name": "optimal"}]}, "scenes": "generator"},
@@ -50,7 +68,9 @@ def _db(path, loop_wins: dict[tuple[int, int], bool], seed: int = 0) -> None:
                    "achieved_density": 0.0, "obstacles": 0, "timings_s": {"total": 1.0},
                    "methods": [{"method": "optimal", "placement": "rating", "secondary": True,
                                 "final_displacement_m": None, "steps": 0, "stopped_by": "",
-                                "success": {"0.2": ok}}]})
+                                "success": {"0.2": ok},
+                                "robots": _robots("off" if errors is None else
+                                                  errors.get((d, trial), (0.001, 0.05)))}]})
 
 
 def test_compare_counts_the_pairs_by_hand(tmp_path):
@@ -68,6 +88,31 @@ def test_compare_counts_the_pairs_by_hand(tmp_path):
     assert five.excluded_margin == pytest.approx(max(map(abs, five.interval)))
     text = markdown(cells, "on", "off")
     assert "| 0.2 | 0.05 | optimal | 10 | 6 | 2 | 1 | +10 |" in text
+
+
+def test_the_corrections_where_the_sweeps_end_differently_by_hand(tmp_path):
+    """The scenes of the test above; the 'on' sweep's cameras corrected to 1 mm and 0.05
+    deg but at 5 %: trial 9 (only 'off' met it) to 5 mm, trial 0 (neither) failed.
+    Each task's last correction per camera counts (r1's first move, 20 mm off, not)."""
+    on = {(0, t): 1 <= t <= 8 for t in range(10)} | {(1, t): t < 3 for t in range(6)}
+    off = {(0, t): 3 <= t <= 9 for t in range(10)} | {(1, t): t < 1 for t in range(4)}
+    _db(tmp_path / "on.sqlite", on, errors={(0, 9): (0.005, 0.1), (0, 0): None})
+    _db(tmp_path / "off.sqlite", off)
+    tasks = corrections.read(tmp_path / "on.sqlite")
+    assert len(tasks) == 16 and tasks[("optimal", 0, 9)].worst == (0.005, 0.1)
+    assert tasks[("optimal", 0, 0)].worst is None and not tasks[("optimal", 0, 0)].within
+    assert corrections.read(tmp_path / "off.sqlite") == {}
+    assert corrections.markdown(tmp_path / "off.sqlite", tmp_path / "on.sqlite", 0.2) == ""
+    text = corrections.markdown(tmp_path / "on.sqlite", tmp_path / "off.sqlite", 0.2)
+    # 32 cameras: 30 corrected, 1 uncertain, 1 failed; 14 of 16 tasks within
+    assert "| optimal | 16 | 32 | 30 | 1 | 1 | 14 | 1.00 / 1.00 |" in text
+    # both: 6 + 1; first only: 2 + 2; second only: trial 9; neither: trial 0 and 3 at 20 %
+    assert "| both | 7 | 7 | 0 | 1.00 / 1.00 |" in text
+    assert "| first only | 4 | 4 | 0 |" in text
+    assert "| second only | 1 | 0 | 0 | 5.00 / 5.00 |" in text
+    assert "| neither | 2 | 1 | 1 | 1.00 / 1.00 |" in text
+    done = run_taskcam("compare", str(tmp_path / "on.sqlite"), str(tmp_path / "off.sqlite"))
+    assert done.returncode == 0 and text in done.stdout
 
 
 def test_compare_refuses_sweeps_of_other_scenes(tmp_path):
