@@ -4,6 +4,7 @@ err, and the episode's reported errors against the simulator's truth."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import mujoco
@@ -12,7 +13,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from calibration.pose import rotation_deg
-from calibration.tracking import FeatureFinder, TrackerSettings
+from calibration.tracking import FeatureFinder, Frame, TrackerSettings
 from sim.config.scenario import load_scenario
 from sim.stages.corrector import PoseCorrector
 from sim.stages.placement_result import pose_error
@@ -73,6 +74,37 @@ def _goal(scene, robot, qpos, offset):
     target = scene.primary.position
     return solve_camera_pose(scene.model, qpos, robot, target, target + offset).qpos[
         robot.qpos_adr]
+
+
+def test_a_lost_track_takes_a_frame_only_where_it_expects_to_be_located_again(scene):
+    """After a frame that was not located: at the fixed step, a frame where the prediction
+    expects at least ``min_inliers`` of the last located frame's fiducials (the camera
+    still facing them), none where it turned away from them (it knows nothing there)."""
+    s = load_scenario()
+    robot = scene.robots[0]
+    belief, world = scene.make_data(), scene.make_data()
+    joints = belief.qpos[robot.qpos_adr].copy()
+    pinhole = camera_pinhole(scene.model, robot.camera)
+    with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
+        corrector = PoseCorrector(scene, belief, world, renderer, pinhole,
+                                  s.camera.baseline_m, new_grid(s), s.correction)
+        corrector.begin(robot, np.array([joints, joints]))
+        tracker = corrector._tracker
+        assert tracker is not None and len(tracker.frames[0].observations) >= 100
+        tracker.frames.append(Frame(tracker.frames[0].g01, {}, located=False))
+        here = corrector.nominal_pose(robot, joints)
+
+        def moved(yaw_deg: float) -> np.ndarray:  # the base turned, the arm as it was
+            q = joints.copy()
+            q[2] += math.radians(yaw_deg)
+            return corrector.nominal_pose(robot, q)
+
+        assert not corrector._due(here)  # not the fixed step yet
+        assert corrector._due(moved(4.0))  # a step on, still facing the fiducials
+        assert not corrector._due(moved(120.0))  # turned away: none of them in view
+        settings = corrector.settings
+        corrector.settings = dataclasses.replace(settings, min_inliers=10_000)
+        assert not corrector._due(moved(4.0))  # too few to be located, however many
 
 
 @pytest.mark.slow

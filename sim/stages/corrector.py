@@ -109,8 +109,9 @@ class PoseCorrector:
         """Whether the camera, where the joints put it, needs a frame. With ``frames =
         "overlap"``: when fewer than ``frame_overlap`` of the last located frame's
         fiducials are predicted findable from the predicted pose (after a frame that was
-        not located, only once the camera has also moved the fixed rule's step, so that a
-        lost view is not retried at every sample), and at the fixed rule's step while the
+        not located, only once the camera has also moved the fixed rule's step and is
+        expected to see enough of them to be located: :meth:`_relocatable`), and at the
+        fixed rule's step while the
         view shares that much with the goal's: the fiducials the final pose is estimated
         from are then measured from many views, which their positions average (each
         frame's pixel noise is its own). With ``"fixed"``: when it has turned
@@ -123,14 +124,25 @@ class PoseCorrector:
                    or np.linalg.norm(T_measured[:3, 3] - last[:3, 3]) >= cfg.frame_every_m / denser)
         if cfg.frames == "fixed":
             return bool(stepped)
-        if not self._tracker.frames[-1].located and not stepped:
-            return False
-        wanted = 1 - (1 - cfg.frame_overlap) / denser
         size = (self.pinhole.width, self.pinhole.height)
+        if not self._tracker.frames[-1].located:
+            return bool(stepped) and self._relocatable(
+                self._tracker.overlap(self._predict(T_measured), size))
+        wanted = 1 - (1 - cfg.frame_overlap) / denser
         if self._tracker.overlap(self._predict(T_measured), size) < wanted:
             return True
         return bool(stepped) and self._tracker.overlap(
             self._predict(self._goal_measured), size) >= cfg.frame_overlap
+
+    def _relocatable(self, overlap: float) -> bool:
+        """Whether a frame with this predicted overlap (with the last located frame) is
+        expected to find enough of its fiducials to be located: a frame is located from
+        ``min_inliers`` of them. Once a track is lost, a frame is taken only then (and
+        at the goal): out there the camera sees none it knows, and a lost track used to
+        take a frame at every step of the move's rest (hundreds on a base's drive)."""
+        assert self._tracker is not None, "begin() first"
+        last = next(f for f in reversed(self._tracker.frames) if f.located)
+        return overlap * len(last.observations) >= self.settings.min_inliers
 
     def _predict(self, T_measured: np.ndarray) -> np.ndarray:
         """The camera's g01 predicted for the joints' camera pose ``T_measured``: the last
