@@ -12,6 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from test_task import looking_at_the_slot, new_task, slot_belief_at
 
+from calibration import edge_fit
 from calibration.displacement import (
     fuse,
     fuse_robust,
@@ -19,7 +20,6 @@ from calibration.displacement import (
     stop_reason,
     within_probability,
 )
-from calibration import edge_fit
 from calibration.edge_fit import alias_starts, fit_edges, point_covariance
 from calibration.edge_model import Boxes
 from mapping import opencv_pose
