@@ -180,8 +180,6 @@ def fit_edges(images: tuple[np.ndarray, np.ndarray], boxes: Boxes, rig: StereoRi
                 moved = start.copy()
                 moved[:3, 3] += [shift[0] * z / rig.fx, shift[1] * z / rig.fy, 0.0]
                 starts.append(moved)
-    else:
-        starts += alias_starts(start, boxes, rig, occluders)
     first = min(reach, COARSE_RANGE_PX)
     fits = [_refine(frames, boxes, rig, s, start, prior, middle, occluders, first)
             for s in starts]
@@ -202,34 +200,6 @@ def fit_edges(images: tuple[np.ndarray, np.ndarray], boxes: Boxes, rig: StereoRi
     if masks is not None:
         second = _covering(second, masks[0], boxes, rig)
     return min((best, second), key=lambda f: (not f.ok, f.cost))
-
-
-def alias_starts(start: np.ndarray, boxes: Boxes, rig: StereoRig,
-                 occluders: list[tuple[np.ndarray, Boxes]]) -> list[np.ndarray]:
-    """The start moved across the image by one period of the model's nearest parallel
-    edges, either way. Each edge is searched at most halfway to its neighbour, so a fit
-    started more than half that period off settles with every edge on its neighbour's
-    step (a thin panel 7 mm low, its top face's two edges swapped, when the rails hide
-    its bottom): those are the places such a misplaced start may have come from, and
-    the most probable of the three fits is kept. None if the nearest parallel edges lie
-    further apart than twice COARSE_RANGE_PX (a start that far off is aligned first)."""
-    samples = visible_samples(start, boxes, rig, 0, occluders, 2)
-    sides = ~samples.end & np.isfinite(samples.apart)
-    if not sides.any():
-        return []
-    edges = np.unique(samples.edge[sides])
-    period = [float(np.median(samples.apart[sides & (samples.edge == e)])) for e in edges]
-    k = int(np.argmin(period))
-    if period[k] > 2 * COARSE_RANGE_PX:
-        return []
-    along = samples.normals[sides & (samples.edge == edges[k])][0] * period[k]
-    z = float((start[:3, :3] @ boxes.centres.mean(axis=0) + start[:3, 3])[2])
-    out = []
-    for sign in (-1.0, 1.0):
-        moved = start.copy()
-        moved[:3, 3] += sign * np.array([along[0] * z / rig.fx, along[1] * z / rig.fy, 0.0])
-        out.append(moved)
-    return out
 
 
 def _covering(fit: EdgeFit, mask: np.ndarray, boxes: Boxes, rig: StereoRig) -> EdgeFit:

@@ -12,7 +12,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 from test_task import looking_at_the_slot, new_task, slot_belief_at
 
-from calibration import edge_fit
 from calibration.displacement import (
     fuse,
     fuse_robust,
@@ -20,7 +19,7 @@ from calibration.displacement import (
     stop_reason,
     within_probability,
 )
-from calibration.edge_fit import alias_starts, fit_edges, point_covariance
+from calibration.edge_fit import fit_edges, point_covariance
 from calibration.edge_model import Boxes
 from mapping import opencv_pose
 from sim.config.scenario import load_scenario
@@ -96,39 +95,6 @@ def test_the_edge_fit_finds_a_blurred_panel_to_a_fraction_of_a_pixel(site):
         assert err < 0.001, err
         spread = np.sqrt(np.trace(point_covariance(fit, np.zeros(3))))
         assert 0 < spread < 0.005
-
-
-@pytest.fixture(scope="module")
-def inside():
-    """As ``site``, the panel in its slot 8 mm above its place: the rails hide its bottom."""
-    yield from _site(np.array([0.002, -0.003, 0.008]))
-
-
-def test_a_panel_in_its_slot_started_one_edge_period_off_is_found_again(inside, monkeypatch):
-    """With its bottom hidden, a panel started where each of its edges projects onto the
-    neighbouring parallel step (as a misfit the step before leaves it) settles there;
-    fitted also from the start moved back and on by that period, it comes back to
-    within half a millimetre and fits the edges better there."""
-    task, pair, rig = inside["task"], inside["pair"], inside["task"].rig
-    occluders = [(inside["slot"], task.slot_boxes)]
-    starts = alias_starts(inside["panel"], task.panel_boxes, rig, occluders)
-    assert len(starts) == 2
-    shift = starts[1][:3, 3] - inside["panel"][:3, 3]
-    assert np.allclose(starts[0][:3, 3] - inside["panel"][:3, 3], -shift)
-    assert 0.001 < np.linalg.norm(shift) < 0.01  # a few pixels at 0.85 m
-
-    def fit() -> tuple[float, float]:
-        found = fit_edges((pair.left, pair.right), task.panel_boxes, rig, starts[1],
-                          (0.002, math.radians(0.5)), occluders,
-                          masks=(pair.mask, pair.right_mask))
-        assert found.ok, found.why
-        return float(np.linalg.norm(found.pose[:3, 3] - inside["panel"][:3, 3])), found.cost
-
-    error, cost = fit()
-    assert error < 0.0005, error
-    monkeypatch.setattr(edge_fit, "alias_starts", lambda *args: [])
-    trapped, trapped_cost = fit()
-    assert trapped > 0.002 and trapped_cost > cost, (trapped, trapped_cost, cost)
 
 
 def test_a_wrong_camera_pose_turns_the_displacement_but_does_not_shift_it(site):
