@@ -146,15 +146,12 @@ class Renderer:
                  or m.cam_projection[m.camera(camera).id] != perspective
                  else _farthest_geometry(m, data, data.camera(camera).xpos))
         start = time.perf_counter()
+        rect = self._draw(data, camera, rows, cols)
+        rgb = self._read_colour(rect)
         if reach is None or reach >= self._sky / 2:
-            rect = self._draw(data, camera, rows, cols)
-            rgb = self._read_colour(rect)
-            rect = self._draw(data, camera, rows, cols, SEGMENT_FLAGS)
-            depth = self._read_depth(rect)
+            depth = self._read_depth(self._draw(data, camera, rows, cols, SEGMENT_FLAGS))
             depth[depth >= self._sky] = np.inf
         else:
-            rect = self._draw(data, camera, rows, cols)
-            rgb = self._read_colour(rect)
             depth = self._read_depth(rect)
             depth[depth > reach] = np.inf  # the sky box
         self.seconds += time.perf_counter() - start
