@@ -24,6 +24,7 @@ from calibration.tracking import (
     TrackerSettings,
     predicted_overlap,
     row_disparities,
+    spread,
 )
 
 CAMERA = StereoCamera(400.0, 400.0, 320.0, 240.0, 0.12)
@@ -78,6 +79,70 @@ def test_stereo_features_pair_the_left_keypoints_with_their_disparity(stereo, wi
     assert np.all(found.z[:, 0] > 320)
     assert np.median(np.abs(found.z[:, 2] - 25.0)) < within_px
     assert found.descriptors.shape == (len(found), 128)
+
+
+def test_keypoints_sit_where_their_blob_is_not_a_quarter_pixel_off():
+    """A keypoint of the image mirrored left-right, mapped back (u -> w - 1 - u), lands
+    where the image's own keypoint is only if both are unbiased: OpenCV's default SIFT
+    puts them a quarter pixel right and down, so the two differ by half a pixel."""
+    image = _texture(6)
+    finder = FeatureFinder(TrackerSettings(features=2000))
+    every = np.ones(image.shape, np.uint8) * 255
+    pts, _ = finder.keypoints(image, every)
+    for flipped, back in [(image[:, ::-1], lambda p: np.column_stack([639 - p[:, 0], p[:, 1]])),
+                          (image[::-1], lambda p: np.column_stack([p[:, 0], 479 - p[:, 1]]))]:
+        mirrored = back(finder.keypoints(np.ascontiguousarray(flipped), every)[0])
+        gap = np.linalg.norm(pts[:, None] - mirrored[None], axis=2)
+        pair = gap.argmin(axis=1)
+        close = gap[np.arange(len(pts)), pair] < 0.5
+        assert close.sum() > 200
+        offset = np.median(pts[close] - mirrored[pair[close]], axis=0)
+        assert np.all(np.abs(offset) < 0.05), offset
+
+
+def test_spread_gives_every_cell_an_equal_share_of_half_and_the_rest_to_the_strongest():
+    rng = np.random.default_rng(7)
+    size, grid = (640, 480), (4, 2)
+    pixels = rng.uniform([0, 0], size, (400, 2))
+    responses = rng.uniform(0, 1, 400)
+    responses[pixels[:, 0] < 160] += 10.0  # one strip of cells far more contrasted
+    dull = (pixels[:, 0] >= 480) & (pixels[:, 1] >= 240)  # a cell with three keypoints
+    keep_dull = np.flatnonzero(dull)[:3]
+    gone = np.flatnonzero(dull)[3:]
+    pixels, responses = np.delete(pixels, gone, 0), np.delete(responses, gone)
+    keep_dull = keep_dull - np.searchsorted(gone, keep_dull)
+    n = 80
+    kept = spread(responses, pixels, size, n, grid=grid)
+    assert len(kept) == n and len(set(kept.tolist())) == n
+    cells = (pixels[:, 1] * 2 // 480).astype(int) * 4 + (pixels[:, 0] * 4 // 640).astype(int)
+    share = n // 16  # half of n over the 8 cells
+    for c in range(8):  # by hand: each cell's strongest up to the share
+        mine = np.flatnonzero(cells == c)
+        strongest = mine[np.argsort(-responses[mine])][:share]
+        assert set(strongest.tolist()) <= set(kept.tolist())
+    assert set(keep_dull.tolist()) <= set(kept.tolist())  # a dull cell keeps what it has
+    # what it could not use went to the strongest left anywhere: the contrasted strip
+    extra = [k for k in kept if np.sum(responses[cells == cells[k]] > responses[k]) >= share]
+    assert len(extra) == n - 7 * share - 3
+    assert all(pixels[k, 0] < 160 for k in extra)
+    assert np.array_equal(spread(responses, pixels, size, 1000, grid=grid), np.arange(len(pixels)))
+
+
+def test_spread_gives_the_cells_where_fiducials_are_expected_more_of_the_shared_half():
+    rng = np.random.default_rng(8)
+    size, grid, n = (640, 480), (4, 2), 160
+    pixels = rng.uniform([0, 0], size, (2000, 2))
+    responses = rng.uniform(0, 1, 2000)
+    responses[pixels[:, 0] < 160] += 10.0  # the strongest all in the left strip
+    expected = rng.uniform([480, 240], [640, 480], (30, 2))  # all in the last cell
+    kept = spread(responses, pixels, size, n, expected, grid=grid)
+    cells = (pixels[:, 1] * 2 // 480).astype(int) * 4 + (pixels[:, 0] * 4 // 640).astype(int)
+    # by hand: n / 4 / 8 = 5 a cell, and the expected cell n / 4 = 40 more
+    counts = np.bincount(cells[kept], minlength=8)
+    assert counts[7] == 45
+    assert all(counts[c] == 5 for c in (1, 2, 3, 5, 6))
+    assert counts[0] + counts[4] == n - 45 - 25  # the strongest half: the left strip
+    assert len(kept) == n
 
 
 def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:

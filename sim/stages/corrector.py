@@ -156,7 +156,8 @@ class PoseCorrector:
         assert self._tracker is not None, "begin() first"
         predicted = self._predict(T_measured)
         if wider is None:
-            self._found = self._look(robot)
+            size = (self.pinhole.width, self.pinhole.height)
+            self._found = self._look(robot, self._tracker.expected(predicted, size))
         assert self._found is not None, "a frame first"
         with self._timer("track"):
             frame = (self._tracker.add(self._found, predicted) if wider is None
@@ -181,7 +182,9 @@ class PoseCorrector:
         self._retraced = True
         return np.vstack([path[k:][::-1], path[k + 1:]])
 
-    def _look(self, robot: Robot) -> StereoFeatures:
+    def _look(self, robot: Robot, expected: np.ndarray | None = None) -> StereoFeatures:
+        """The stereo pair's features; more of them where the known fiducials are
+        ``expected`` ((u, v, disparity), m x 3)."""
         r, d = self.renderer, self.world
         with self._timer("render"):
             left, right = r.rgb(d, robot.camera), r.rgb(d, robot.right_camera)
@@ -189,7 +192,7 @@ class PoseCorrector:
         self._last_left = left
         with self._timer("features"):
             # a right keypoint on a robot can only pair with a left one there, already out
-            return self.finder.stereo(left, right, own)
+            return self.finder.stereo(left, right, own, expected)
 
     def _own(self, camera: str) -> np.ndarray:
         """The robots' bodies in ``camera``'s image (h, w bool), from a segmentation at
