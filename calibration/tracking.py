@@ -153,7 +153,7 @@ class FeatureFinder:
     def __init__(self, settings: TrackerSettings) -> None:
         self.settings = settings
         if settings.detector == "sift":
-            # every keypoint detected (then :func:`spread`), each where it is: OpenCV
+            # every keypoint (then :func:`spread`), each where it is: OpenCV
             # otherwise places them a quarter pixel off in u and v (its doubled first
             # octave), as if the camera were turned 0.03 deg, which the track accumulates
             self.detector = cv2.SIFT_create(  # type: ignore[attr-defined]
@@ -173,18 +173,16 @@ class FeatureFinder:
         ``expected``. ORB's FAST corners lie on whole pixels of their pyramid level: they
         are refined to sub-pixel on the image (a corner's gradient is orthogonal to its
         offset)."""
-        if self.settings.detector == "sift":
-            every = self.detector.detect(gray, mask)
-            if not every:
-                return np.zeros((0, 2)), None
-            keep = spread(np.array([k.response for k in every]),
-                          np.array([k.pt for k in every]), gray.shape[::-1],
-                          self.settings.features, expected)
-            found, descriptors = self.detector.compute(gray, [every[i] for i in keep])
-        else:
-            found, descriptors = self.detector.detectAndCompute(gray, mask)
+        found, descriptors = self.detector.detectAndCompute(gray, mask)
         if descriptors is None or not found:
             return np.zeros((0, 2)), None
+        if self.settings.detector == "sift":
+            # every keypoint described, then the kept ones taken: a second pass over the
+            # kept ones alone builds SIFT's pyramid again, which costs more
+            keep = spread(np.array([k.response for k in found]),
+                          np.array([k.pt for k in found]), gray.shape[::-1],
+                          self.settings.features, expected)
+            found, descriptors = tuple(found[i] for i in keep), descriptors[keep]
         pts: np.ndarray = np.array([k.pt for k in found], np.float32).reshape(-1, 1, 2)
         if self.settings.detector == "orb":
             pts = cv2.cornerSubPix(gray, pts, (3, 3), (-1, -1), SUBPIXEL)
