@@ -389,23 +389,30 @@ class FiducialTracker:
         self.fiducials = Fiducials()
         self.frames: list[Frame] = []
 
+    @property
+    def last_located(self) -> Frame:
+        """The latest frame that was located (the first always is)."""
+        return next(f for f in reversed(self.frames) if f.located)
+
+    def _last_seen(self) -> np.ndarray:
+        """World positions (n, 3) of the last located frame's fiducials."""
+        last = self.last_located
+        return np.array([self.fiducials.points[i] for i in last.observations]).reshape(-1, 3)
+
     def expected(self, predicted: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         """(u, v, disparity) (m, 3) of the last located frame's fiducials in front of a
         camera at ``predicted`` (g01) and inside its image of ``size`` (width, height)."""
-        last = next(f for f in reversed(self.frames) if f.located)
-        seen = np.array([self.fiducials.points[i] for i in last.observations]).reshape(-1, 3)
-        uv, depth = project(self.camera, predicted, seen)
+        uv, depth = project(self.camera, predicted, self._last_seen())
         inside = ((depth > 0.05) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0)
                   & (uv[:, 0] < size[0]) & (uv[:, 1] < size[1]))
-        d = self.camera.fx * self.camera.baseline / np.maximum(depth[inside], 0.05)
+        d = self.camera.fx * self.camera.baseline / depth[inside]
         return np.column_stack([uv[inside], d])
 
     def overlap(self, predicted: np.ndarray, size: tuple[int, int]) -> float:
         """The share of the last located frame's fiducials a frame at ``predicted``
         (g01) would find again (:func:`predicted_overlap`)."""
-        last = next(f for f in reversed(self.frames) if f.located)
-        seen = np.array([self.fiducials.points[i] for i in last.observations]).reshape(-1, 3)
-        return predicted_overlap(self.camera, size, last.g01, predicted, seen)
+        return predicted_overlap(self.camera, size, self.last_located.g01, predicted,
+                                 self._last_seen())
 
     def start(self, found: StereoFeatures, g01: np.ndarray) -> Frame:
         """The first frame, from a known pose."""

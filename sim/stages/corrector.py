@@ -141,7 +141,7 @@ class PoseCorrector:
         at the goal): out there the camera sees none it knows, and a lost track used to
         take a frame at every step of the move's rest (hundreds on a base's drive)."""
         assert self._tracker is not None, "begin() first"
-        last = next(f for f in reversed(self._tracker.frames) if f.located)
+        last = self._tracker.last_located
         return overlap * len(last.observations) >= self.settings.min_inliers
 
     def _predict(self, T_measured: np.ndarray) -> np.ndarray:
