@@ -167,3 +167,39 @@ def test_a_coarse_segmentation_sees_what_the_whole_one_sees_in_each_block(render
             assert set(np.unique(coarse)) <= set(np.unique(seg))
             assert len(np.unique(coarse)) >= 0.8 * len(np.unique(seg))
 
+
+
+def test_a_surface_looks_as_bright_whichever_way_the_camera_turns(rendered):
+    """The scene's lights are fixed in the world (the cameras carry no lamp): a camera
+    turned in place by 12 degrees sees the table's top as bright as before, point for
+    point (a light moving with the camera shaded it by the camera's direction: 5-7 %)."""
+    scene, data, camera, pinhole, depth, rgb, seg = rendered
+    table = scene.model.geom("workpiece/table").id
+    T = opencv_pose(camera_pose(data, camera))
+    v, u = np.nonzero((seg == table) & np.isfinite(depth))
+    pick = np.random.default_rng(0).choice(len(u), min(len(u), 3000), replace=False)
+    u, v = u[pick], v[pick]
+    rays = np.column_stack([(u - pinhole.cx) / pinhole.fx, (v - pinhole.cy) / pinhole.fy,
+                            np.ones(len(u))])
+    points = camera_to_world(T, rays * depth[v, u][:, None])
+    model, cam = scene.model, scene.model.camera(camera).id
+    quat = model.cam_quat[cam].copy()
+    turn = Rotation.from_euler("x", 12.0, degrees=True)  # about the camera's own x axis
+    model.cam_quat[cam] = (Rotation.from_quat(quat, scalar_first=True) * turn).as_quat(
+        scalar_first=True)
+    try:
+        turned_data = scene.make_data()
+        turned_data.qpos[:] = data.qpos
+        mujoco.mj_forward(model, turned_data)
+        with Renderer(model, pinhole.width, pinhole.height) as r:
+            turned = r.rgb(turned_data, camera)
+        T2 = opencv_pose(camera_pose(turned_data, camera))
+    finally:
+        model.cam_quat[cam] = quat
+    pixel = np.rint(pinhole.project(world_to_camera(T2, points))).astype(int)
+    inside = ((pixel[:, 0] >= 2) & (pixel[:, 0] < pinhole.width - 2)
+              & (pixel[:, 1] >= 2) & (pixel[:, 1] < pinhole.height - 2))
+    assert inside.sum() > 500
+    before = rgb[v[inside], u[inside]].astype(float).mean()
+    after = turned[pixel[inside, 1], pixel[inside, 0]].astype(float).mean()
+    assert abs(after / before - 1) < 0.01, (before, after)

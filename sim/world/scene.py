@@ -186,8 +186,15 @@ def _world(spec: mujoco.MjSpec, s: Scenario) -> None:
     spec.visual.global_.offwidth = max(640, s.camera.width)
     spec.visual.global_.offheight = max(480, s.camera.height)
     spec.visual.quality.offsamples = s.camera.samples
-    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
-    spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
+    # The cameras carry no lamp: the headlight lights without a direction (its ambient
+    # alone), so that a surface looks the same whichever way a camera turns. Its diffuse
+    # and specular (MuJoCo's default) shaded every surface by the rendering camera's
+    # direction, which moved the natural fiducials' keypoints from view to view: a
+    # wrist's 30-40 deg turn moved a tracked pose ~1.5 mm (docs/pose-correction.md).
+    # 0.75 is the light a surface facing the camera had (ambient 0.35 + diffuse 0.4).
+    spec.visual.headlight.ambient = [0.75, 0.75, 0.75]
+    spec.visual.headlight.diffuse = [0.0, 0.0, 0.0]
+    spec.visual.headlight.specular = [0.0, 0.0, 0.0]
     spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
                      builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
                      rgb1=[0.6, 0.75, 0.9], rgb2=[0.1, 0.15, 0.25], width=64, height=64)
