@@ -21,9 +21,16 @@ import numpy as np
 from scipy.stats import chi2 as chi_square
 from scipy.stats import ncx2
 
-from .edge_fit import EdgeFit, Uncertainty, fit_edges, point_covariance
+from .edge_fit import EdgeFit, Uncertainty, fit_edges, moved_chi2, point_covariance
 from .edge_model import Boxes, StereoRig
 
+# Cameras disagree beyond chance, or one disagrees with the prediction, when their
+# chi-square exceeds its 99.9th percentile: once in a thousand measurements by chance
+CHANCE = 0.999
+# A goal's fit that moved further from its start than its start's uncertainty allows
+# but once in a thousand times (6 degrees of freedom) fitted something else: a hood's
+# slit 5 cm over the slot passed for its walls
+GOAL_MOVED_CHI2 = float(chi_square.ppf(CHANCE, 6))
 # The object's start, once the goal is fitted, is searched again from its first fit with
 # this uncertainty (m, rad): a first fit is this good where it is good at all
 REFIT_SD = (0.002, math.radians(0.3))
@@ -67,6 +74,13 @@ def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
                      [(first.pose, object_boxes)])
     if not goal.ok:
         return Relative(None, None, first, goal, f"goal: {goal.why}")
+    moved = moved_chi2(goal, goal_start, goal_sd)
+    if moved > GOAL_MOVED_CHI2:  # the goal stands still: other edges were taken for it
+        away_mm = 1000 * float(np.linalg.norm(goal.pose[:3, 3] - goal_start[:3, 3]))
+        return Relative(None, None, first, goal,
+                        f"goal: fitted {away_mm:.0f} mm from where it was believed, beyond "
+                        f"that belief's uncertainty (chi-square {moved:.0f} > "
+                        f"{GOAL_MOVED_CHI2:.1f}): other edges taken for it")
     obj = first
     moved_px = rig.fx * float(np.linalg.norm(goal.pose[:3, 3] - goal_start[:3, 3])) / float(
         goal.pose[2, 3])
@@ -91,9 +105,6 @@ def via_feature(object_fit: EdgeFit, goal: np.ndarray, goal_covariance: np.ndarr
             point_covariance(object_fit, origin) + goal_covariance)
 
 
-# Cameras disagree beyond chance, or one disagrees with the prediction, when their
-# chi-square exceeds its 99.9th percentile: once in a thousand measurements by chance
-CHANCE = 0.999
 
 
 @dataclass(frozen=True)

@@ -142,6 +142,16 @@ def prior_information(start_sd: Uncertainty) -> tuple[np.ndarray, float, float]:
     return np.linalg.inv(start_sd), largest[0], largest[1]
 
 
+def moved_chi2(fit: EdgeFit, start: np.ndarray, start_sd: Uncertainty) -> float:
+    """How far ``fit`` moved from its ``start`` in the start's own uncertainty: the
+    motion's squared Mahalanobis length (chi-square with 6 degrees of freedom where the
+    start's uncertainty holds and the fit found the same thing)."""
+    prior, _, _ = prior_information(start_sd)
+    centre = fit.pose[:3, :3] @ fit.centre + fit.pose[:3, 3]
+    away = _log(fit.pose @ np.linalg.inv(start), centre)
+    return float(away @ prior @ away)
+
+
 def fit_edges(images: tuple[np.ndarray, np.ndarray], boxes: Boxes, rig: StereoRig,
               start: np.ndarray, start_sd: Uncertainty,
               occluders: list[tuple[np.ndarray, Boxes]] | None = None,

@@ -13,13 +13,14 @@ from scipy.spatial.transform import Rotation
 from test_task import looking_at_the_slot, new_task, slot_belief_at
 
 from calibration.displacement import (
+    GOAL_MOVED_CHI2,
     fuse,
     fuse_robust,
     in_world,
     stop_reason,
     within_probability,
 )
-from calibration.edge_fit import fit_edges, point_covariance
+from calibration.edge_fit import EdgeFit, fit_edges, moved_chi2, point_covariance
 from calibration.edge_model import Boxes
 from mapping import opencv_pose
 from sim.config.scenario import load_scenario
@@ -269,3 +270,31 @@ def test_the_retired_stop_key_names_its_successors(tmp_path):
         load_scenario(path)
     text = str(caught.value)
     assert "task.stop_m" in text and "stop_share" in text and "\n" not in text
+
+
+def test_how_far_a_fit_moved_in_its_starts_uncertainty_by_hand():
+    """6 mm along x at 2 mm sd is 3 sd (chi-square 9); a 2 deg turn about the fit's own
+    centre at 1 deg sd is 2 sd (4) and moves no point of it; both together about 13, the
+    same given as a covariance as given as standard deviations. A goal's fit beyond the
+    99.9th percentile of chi-square with 6 degrees of freedom is refused (22.46)."""
+    start = np.eye(4)
+    start[:3, 3] = [0.1, -0.05, 0.8]
+    centre = np.array([0.01, 0.02, 0.0])  # in the object's frame
+
+    def fit_at(pose: np.ndarray) -> EdgeFit:
+        return EdgeFit(pose, np.eye(6), 100, 0.1, centre, 0.0)
+
+    sd = (0.002, math.radians(1.0))
+    moved = start.copy()
+    moved[:3, 3] += [0.006, 0.0, 0.0]
+    assert moved_chi2(fit_at(moved), start, sd) == pytest.approx(9.0)
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_rotvec([0.0, 0.0, math.radians(2.0)]).as_matrix()
+    about = start[:3, :3] @ centre + start[:3, 3]  # the centre where the start puts it
+    turn[:3, 3] = about - turn[:3, :3] @ about
+    assert moved_chi2(fit_at(turn @ start), start, sd) == pytest.approx(4.0)
+    covariance = np.diag([sd[0] ** 2] * 3 + [sd[1] ** 2] * 3)
+    both = moved_chi2(fit_at(turn @ moved), start, sd)
+    assert moved_chi2(fit_at(turn @ moved), start, covariance) == pytest.approx(both)
+    assert 12.0 < both < 14.0  # the turn moves the shifted centre a little, too
+    assert abs(GOAL_MOVED_CHI2 - 22.458) < 1e-3
