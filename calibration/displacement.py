@@ -105,8 +105,6 @@ def via_feature(object_fit: EdgeFit, goal: np.ndarray, goal_covariance: np.ndarr
             point_covariance(object_fit, origin) + goal_covariance)
 
 
-
-
 @dataclass(frozen=True)
 class Fused:
     """Displacements of several cameras fused by inverse covariance (world frame, m)."""
