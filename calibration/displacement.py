@@ -74,16 +74,15 @@ def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
                      [(first.pose, object_boxes)])
     if not goal.ok:
         return Relative(None, None, first, goal, f"goal: {goal.why}")
+    away_m = float(np.linalg.norm(goal.pose[:3, 3] - goal_start[:3, 3]))
     moved = moved_chi2(goal, goal_start, goal_sd)
     if moved > GOAL_MOVED_CHI2:  # the goal stands still: other edges were taken for it
-        away_mm = 1000 * float(np.linalg.norm(goal.pose[:3, 3] - goal_start[:3, 3]))
         return Relative(None, None, first, goal,
-                        f"goal: fitted {away_mm:.0f} mm from where it was believed, beyond "
-                        f"that belief's uncertainty (chi-square {moved:.0f} > "
+                        f"goal: fitted {1000 * away_m:.0f} mm from where it was believed, "
+                        f"beyond that belief's uncertainty (chi-square {moved:.0f} > "
                         f"{GOAL_MOVED_CHI2:.1f}): other edges taken for it")
     obj = first
-    moved_px = rig.fx * float(np.linalg.norm(goal.pose[:3, 3] - goal_start[:3, 3])) / float(
-        goal.pose[2, 3])
+    moved_px = rig.fx * away_m / float(goal.pose[2, 3])
     if moved_px > REFIT_MOVED_PX:  # the goal was not where it hid the object from
         again = fit_edges(images, object_boxes, rig, first.pose, REFIT_SD,
                           [(goal.pose, goal_boxes)])

@@ -168,7 +168,6 @@ def test_a_coarse_segmentation_sees_what_the_whole_one_sees_in_each_block(render
             assert len(np.unique(coarse)) >= 0.8 * len(np.unique(seg))
 
 
-
 def test_a_surface_looks_as_bright_whichever_way_the_camera_turns(rendered):
     """The scene's lights are fixed in the world (the cameras carry no lamp): a camera
     turned in place by 12 degrees sees the table's top as bright as before, point for
