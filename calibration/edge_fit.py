@@ -10,11 +10,12 @@ for nothing. Searching and fitting alternate, the search range narrowing from wh
 starting pose's uncertainty needs to a few pixels ("moving edges", as model-based
 visual-servoing trackers do it).
 
-An edge is used where at least one of its two faces is turned toward the camera (a
-silhouette or a crease) and nothing in the scene that is modelled hides it: the boxes of
-every fitted model, grown by a pixel and a half so that points next to another model's
-outline are not used either. Edges along the image rows carry no disparity; the ends,
-corners and the edges across the rows constrain depth, and every edge is used.
+An edge is used where the camera sees at least one of its two faces (turned toward it,
+or nearly edge-on but a pixel or more wide in the image: a silhouette or a crease) and
+nothing in the scene that is modelled hides it: the boxes of every fitted model, grown by
+a pixel and a half so that points next to another model's outline are not used either.
+Edges along the image rows carry no disparity; the ends, corners and the edges across
+the rows constrain depth, and every edge is used.
 
 The fit's covariance counts the edge points' errors as they are: each point's own noise,
 and a bias that all points of one edge in one image share (aliasing and blur along it),

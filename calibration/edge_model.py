@@ -21,10 +21,16 @@ END_MARGIN = 0.12  # no searches in this share of an edge at each end: corners m
 # excluding close edges altogether measured worse (bench/measurement.py: 0.8 m, 30 deg,
 # lateral p95 0.44 mm searched this way, 1.12 mm without edges closer than 2 px).
 
-# A face is seen when turned toward the camera by more than this (the cosine of its normal
-# to the line of sight: 6 deg from edge-on); a face seen edge-on shows its far edges on
-# top of its near ones (a rail's foot under its top, seen from straight above)
+# A face is seen when turned toward the camera by more than MIN_FACING (the cosine of its
+# normal to the line of sight: 6 deg from edge-on), or, nearer edge-on, where its far edge
+# still projects MIN_FACE_PX or more from its near one: a 150 mm face turned 5 deg to the
+# camera shows 13 mm, 7 px at 0.8 m, and its far edge is the object's outline there. A
+# face seen edge-on and narrower shows its far edges on top of its near ones (a rail's
+# foot under its top, seen from straight above). Measured (docs/measurement.md): by the
+# width alone, 1 px, the faces narrower than a pixel but turned to the camera went
+# unsearched, and the default scenario's camera 60 deg off the slot's normal lost most.
 MIN_FACING = 0.1
+MIN_FACE_PX = 1.0
 MIN_END_EDGE_PX = 4.0  # an edge's ends are searched where it projects at least this long
 GROW_PX = 1.5  # modelled occluders are grown by this: no searches next to their outline
 
@@ -130,15 +136,25 @@ class Samples:
 
 def _facing_edges(pose: np.ndarray, boxes: Boxes, camera: int, rig: StereoRig
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """The edges of ``boxes`` at ``pose`` with a face toward camera ``camera``: their
-    endpoints in the object frame (m, 2, 3) and the box each belongs to."""
+    """The edges of ``boxes`` at ``pose`` with a face camera ``camera`` sees (turned toward
+    it beyond MIN_FACING, or showing MIN_FACE_PX across): their endpoints in the object
+    frame (m, 2, 3) and the box each belongs to."""
     ends, normals, owner = box_edges(boxes)
     R, t = pose[:3, :3], pose[:3, 3]
     eye = np.array([camera * rig.baseline_m, 0.0, 0.0])
     mid = (ends[:, 0] + ends[:, 1]) / 2 @ R.T + t
-    sight = (eye - mid) / np.linalg.norm(eye - mid, axis=1, keepdims=True)
-    facing = ((normals @ R.T) * sight[:, None, :]).sum(-1) > MIN_FACING  # (m, 2)
-    keep = facing.any(axis=1)
+    distance = np.linalg.norm(eye - mid, axis=1)
+    sight = (eye - mid) / distance[:, None]
+    turned = ((normals @ R.T) * sight[:, None, :]).sum(-1)  # (m, 2): cos, normal to sight
+    along = np.abs(((ends[:, 1] - ends[:, 0]) @ R.T * sight).sum(-1)) / np.linalg.norm(
+        ends[:, 1] - ends[:, 0], axis=1)
+    # each face's width across the edge (m): the box's extent along the other face's normal
+    extent = 2 * np.abs(normals[:, ::-1] * boxes.halves[owner][:, None, :]).sum(-1)
+    # the far edge's distance from the near one in the image (px): the width times the cos,
+    # over the sine of the edge's own angle to the line of sight
+    shown = rig.fx * extent * turned / np.sqrt(np.maximum(1 - along ** 2, 1e-12))[:, None]
+    wide = (turned > 0) & (shown / distance[:, None] >= MIN_FACE_PX)
+    keep = ((turned > MIN_FACING) | wide).any(axis=1)
     return ends[keep], owner[keep]
 
 

@@ -21,7 +21,13 @@ from calibration.displacement import (
     within_probability,
 )
 from calibration.edge_fit import EdgeFit, fit_edges, moved_chi2, point_covariance
-from calibration.edge_model import Boxes
+from calibration.edge_model import (
+    MIN_FACE_PX,
+    MIN_FACING,
+    Boxes,
+    StereoRig,
+    visible_samples,
+)
 from mapping import opencv_pose
 from sim.config.scenario import load_scenario
 from sim.config.schema import ScenarioError
@@ -298,3 +304,40 @@ def test_how_far_a_fit_moved_in_its_starts_uncertainty_by_hand():
     assert moved_chi2(fit_at(turn @ moved), start, covariance) == pytest.approx(both)
     assert 12.0 < both < 14.0  # the turn moves the shifted centre a little, too
     assert abs(GOAL_MOVED_CHI2 - 22.458) < 1e-3
+
+
+def test_a_face_nearly_edge_on_is_seen_where_it_shows_a_pixel_across():
+    """Boxes straight below a camera, turned by a small angle about their long axis: a
+    side face's far (bottom) edge is searched exactly where the face turns more than
+    MIN_FACING toward the camera, or, projected by brute force, lies a pixel or more from
+    its near (top) edge. The panel's 150 mm side 2 deg from edge-on shows ~2.3 px (its
+    bottom edge is the outline there) where 6 deg from edge-on was the rule; a 30 mm
+    rail's side at 0.5 deg under a pixel; a 1 mm strip's at 20 deg is seen by its turn."""
+    rig = StereoRig(640, 480, 416.0, 416.0, 319.5, 239.5, baseline_m=0.12)
+    seen = 0
+    for halves in ((0.005, 0.1, 0.075), (0.004, 0.1, 0.015), (0.004, 0.1, 0.0005)):
+        boxes = Boxes(np.array([[0.0, 0.0, halves[2]]]), np.array([halves]))
+        for degrees in (0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0):
+            pose = np.eye(4)
+            down = np.diag([1.0, -1.0, -1.0])  # object up = the camera's -z
+            pose[:3, :3] = down @ Rotation.from_rotvec(
+                [0.0, -math.radians(degrees), 0.0]).as_matrix()
+            pose[:3, 3] = [-halves[0], 0.0, 0.8 + 2 * halves[2]]  # the face edge-on untilted
+            x = halves[0]
+            top, bottom = np.array([x, 0.0, 2 * halves[2]]), np.array([x, 0.0, 0.0])
+            on_image = [rig.project((pose[:3, :3] @ p + pose[:3, 3])[None])[0]
+                        for p in (top, bottom)]
+            width_px = abs(on_image[0][0] - on_image[1][0])  # the edges run along the image's y
+            normal = pose[:3, :3] @ [1.0, 0.0, 0.0]
+            mid = pose[:3, :3] @ (bottom + top) / 2 + pose[:3, 3]
+            turned = float(normal @ -mid) / float(np.linalg.norm(mid))
+            samples = visible_samples(pose, boxes, rig, 0, [], 5.0)
+            searched = bool(np.any(~samples.end & np.isclose(samples.points[:, 0], x)
+                                   & np.isclose(samples.points[:, 2], 0.0)))
+            assert turned > 0
+            expected = turned > MIN_FACING or width_px >= MIN_FACE_PX
+            assert searched == expected, (halves, degrees, width_px, turned)
+            seen += int(searched and turned <= MIN_FACING)
+    assert seen >= 3  # the panel at 1, 2 and 5 deg: seen by their width alone
+    # the hand calculation: 150 mm turned 2 deg toward a camera 0.95 m away, f = 416 px
+    assert 150e-3 * math.sin(math.radians(2.0)) * 416.0 / 0.95 == pytest.approx(2.29, abs=0.01)
