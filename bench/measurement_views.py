@@ -353,9 +353,10 @@ def relative(site: Site, view: View) -> Measured:
     """The relative measurement (issue 19), as the task makes it at a step: the panel's
     CAD model and the slot's walls fitted to the edges of this camera's own pair
     (``InsertionTask.measure_relative``), the panel from the view's starting guess (1 cm
-    off, as a previous measurement leaves it), the slot from where the look stage's
-    holes' frame leaves it (the true slot off by ``SLOT_FRAME_SD``, the frame's error,
-    whether or not this view sights the holes: the task knows the slot from before)."""
+    off, as a previous measurement leaves it, and turned as the task's belief holds it),
+    the slot from where the look stage's holes' frame leaves it (the true slot off by
+    ``SLOT_FRAME_SD``, the frame's error, whether or not this view sights the holes: the
+    task knows the slot from before)."""
     robot, task, rng = site.robot, site.task, site.rng
     true_slot = np.eye(4)
     true_slot[:3, :3] = site.data.site("workpiece/slot").xmat.reshape(3, 3)
