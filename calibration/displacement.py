@@ -22,7 +22,7 @@ from scipy.stats import chi2 as chi_square
 from scipy.stats import ncx2
 
 from .edge_fit import EdgeFit, Uncertainty, fit_edges, moved_chi2, point_covariance
-from .edge_model import Boxes, StereoRig
+from .edge_model import Boxes, Seen, StereoRig
 
 # Cameras disagree beyond chance, or one disagrees with the prediction, when their
 # chi-square exceeds its 99.9th percentile: once in a thousand measurements by chance
@@ -57,7 +57,8 @@ def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
                      object_boxes: Boxes, object_start: np.ndarray,
                      object_sd: tuple[float, float], goal_boxes: Boxes,
                      goal_start: np.ndarray, goal_sd: Uncertainty,
-                     object_masks: tuple[np.ndarray, np.ndarray] | None = None) -> Relative:
+                     object_masks: tuple[np.ndarray, np.ndarray] | None = None,
+                     seen: Seen | None = None) -> Relative:
     """Fit the object and the goal in one stereo pair (RGB) and return the displacement
     of the object's frame origin from the goal's (both models' frames put their point of
     interest at the origin). Starts are poses to the left camera (OpenCV), with their
@@ -65,13 +66,14 @@ def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
     ``object_masks`` (the object's pixels in the left and right images, by its colour)
     align a far start. Each model hides the other: the object is
     fitted with the goal at its start, the goal with the object as fitted, the object
-    again with the goal as fitted."""
+    again with the goal as fitted; what the pair saw in front of both (``seen``, its
+    disparity) hides them too."""
     first = fit_edges(images, object_boxes, rig, object_start, object_sd,
-                      [(goal_start, goal_boxes)], masks=object_masks)
+                      [(goal_start, goal_boxes)], masks=object_masks, seen=seen)
     if not first.ok:
         return Relative(None, None, first, None, f"object: {first.why}")
     goal = fit_edges(images, goal_boxes, rig, goal_start, goal_sd,
-                     [(first.pose, object_boxes)])
+                     [(first.pose, object_boxes)], seen=seen)
     if not goal.ok:
         return Relative(None, None, first, goal, f"goal: {goal.why}")
     away_m = float(np.linalg.norm(goal.pose[:3, 3] - goal_start[:3, 3]))
@@ -85,7 +87,7 @@ def measure_relative(images: tuple[np.ndarray, np.ndarray], rig: StereoRig,
     moved_px = rig.fx * away_m / float(goal.pose[2, 3])
     if moved_px > REFIT_MOVED_PX:  # the goal was not where it hid the object from
         again = fit_edges(images, object_boxes, rig, first.pose, REFIT_SD,
-                          [(goal.pose, goal_boxes)])
+                          [(goal.pose, goal_boxes)], seen=seen)
         obj = again if again.ok and again.cost <= first.cost else first
     origin = np.zeros(3)
     displacement = obj.pose[:3, 3] - goal.pose[:3, 3]
@@ -113,6 +115,8 @@ class Fused:
     cameras: list[str] = field(default_factory=list)
     chi2: float = 0.0  # of the cameras' disagreement, 3 (n - 1) degrees of freedom
     dropped: dict[str, str] = field(default_factory=dict)  # camera -> why it was left out
+    # with cameras left out: all of them fused (``fuse``: grown by their disagreement)
+    disputed: Fused | None = None
 
     @property
     def agreed(self) -> bool:
@@ -174,7 +178,16 @@ def fuse_robust(measured: dict[str, tuple[np.ndarray, np.ndarray]],
         return fused
     rest = fuse(kept)
     assert rest is not None
-    return dataclasses.replace(rest, dropped=dropped)
+    return dataclasses.replace(rest, dropped=dropped, disputed=fused)
+
+
+def prediction_start(fused: Fused) -> tuple[np.ndarray, np.ndarray]:
+    """Where the next step's prediction starts (displacement, covariance): the fusion,
+    or, with cameras left out, all of them fused (``Fused.disputed``), as uncertain as
+    their disagreement. A prediction from the cameras kept would follow them, and leave
+    out a camera that was right every step after."""
+    whole = fused if fused.disputed is None else fused.disputed
+    return whole.displacement, whole.covariance
 
 
 def in_world(displacement: np.ndarray, covariance: np.ndarray, R_world_cam: np.ndarray,

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .edge_model import Boxes, Samples, StereoRig, visible_samples
+from .edge_model import Boxes, Samples, Seen, StereoRig, visible_samples
 from .edge_search import (
     MAX_REACH_PX,
     MAX_REGION_REACH_PX,
@@ -156,7 +156,8 @@ def moved_chi2(fit: EdgeFit, start: np.ndarray, start_sd: Uncertainty) -> float:
 def fit_edges(images: tuple[np.ndarray, np.ndarray], boxes: Boxes, rig: StereoRig,
               start: np.ndarray, start_sd: Uncertainty,
               occluders: list[tuple[np.ndarray, Boxes]] | None = None,
-              masks: tuple[np.ndarray, np.ndarray] | None = None) -> EdgeFit:
+              masks: tuple[np.ndarray, np.ndarray] | None = None,
+              seen: Seen | None = None) -> EdgeFit:
     """Fit ``boxes``' pose (object to left camera) to the edges of the stereo pair
     ``images`` (RGB), from ``start``, uncertain by ``start_sd`` (m, rad per axis, or a
     covariance: see ``Uncertainty``).
@@ -171,7 +172,8 @@ def fit_edges(images: tuple[np.ndarray, np.ndarray], boxes: Boxes, rig: StereoRi
     motion about the model's centre, see :func:`point_covariance`). The fit that
     is the most probable is returned; ``why`` says if it is not to be used. With the
     object's pixels in both images (``masks``), its region aligns the start instead
-    (:func:`align_region`), and that one start is fitted."""
+    (:func:`align_region`), and that one start is fitted. ``seen``, the pair's
+    disparity, hides the edges that something nearer than the model covers."""
     occluders = occluders or []
     frames = [np.asarray(im, np.float32) for im in images]
     middle = boxes.centres.mean(axis=0)
@@ -183,16 +185,16 @@ def fit_edges(images: tuple[np.ndarray, np.ndarray], boxes: Boxes, rig: StereoRi
         z = float((start[:3, :3] @ middle + start[:3, 3])[2])
         if masks is not None:
             starts = [align_region(masks, start, boxes, rig, min(needed, MAX_REGION_REACH_PX),
-                                   sd_m)]
+                                   sd_m, seen)]
         else:
             starts = []
-            for shift in align(frames, [visible_samples(start, boxes, rig, c, occluders, 2)
-                                        for c in (0, 1)], reach):
+            for shift in align(frames, [visible_samples(start, boxes, rig, c, occluders, 2,
+                                                        seen, sd_m) for c in (0, 1)], reach):
                 moved = start.copy()
                 moved[:3, 3] += [shift[0] * z / rig.fx, shift[1] * z / rig.fy, 0.0]
                 starts.append(moved)
     first = min(reach, COARSE_RANGE_PX)
-    fits = [_refine(frames, boxes, rig, s, start, prior, middle, occluders, first)
+    fits = [_refine(frames, boxes, rig, s, start, prior, middle, occluders, first, seen, sd_m)
             for s in starts]
     if not fits:
         return EdgeFit(start, np.full((6, 6), np.inf), 0, np.inf, middle, np.inf, [],
@@ -207,7 +209,8 @@ def fit_edges(images: tuple[np.ndarray, np.ndarray], boxes: Boxes, rig: StereoRi
     # the start, and the more probable of the two is kept.
     again = start.copy()
     again[:3, 3] = best.pose[:3, :3] @ middle + best.pose[:3, 3] - start[:3, :3] @ middle
-    second = _refine(frames, boxes, rig, again, start, prior, middle, occluders, FINE_RANGE_PX)
+    second = _refine(frames, boxes, rig, again, start, prior, middle, occluders, FINE_RANGE_PX,
+                     seen, sd_m)
     if masks is not None:
         second = _covering(second, masks[0], boxes, rig)
     return min((best, second), key=lambda f: (not f.ok, f.cost))
@@ -229,22 +232,25 @@ def _covering(fit: EdgeFit, mask: np.ndarray, boxes: Boxes, rig: StereoRig) -> E
 
 def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.ndarray,
             start: np.ndarray, prior: np.ndarray, middle: np.ndarray,
-            occluders: list[tuple[np.ndarray, Boxes]], first_reach: int) -> EdgeFit:
+            occluders: list[tuple[np.ndarray, Boxes]], first_reach: int,
+            seen: Seen | None = None, depth_sd_m: float = 0.0) -> EdgeFit:
     """Moving edges from ``pose``: search within ``first_reach`` pixels, then within
     FINE_RANGE_PX, fit with Tukey's weights and the prior (information ``prior`` about
-    ``start``), until the pose settles."""
+    ``start``, whose depth is uncertain by ``depth_sd_m``), until the pose settles;
+    ``seen`` hides what something nearer covers."""
     reach = max(first_reach, FINE_RANGE_PX)
     scale = reach / 2.0
-    seen: list[Samples] = []
+    shown: list[Samples] = []
     last: tuple[Any, ...] | None = None
     for it in range(ITERATIONS):
         centre = pose[:3, :3] @ middle + pose[:3, 3]
         rows, residuals, matched, roomy, groups, merged = [], [], [], [], [], []
         if it == 0 or (it in RESAMPLE_AT and first_reach > FINE_RANGE_PX):
-            seen = [visible_samples(pose, boxes, rig, c, occluders, reach + 2) for c in (0, 1)]
+            shown = [visible_samples(pose, boxes, rig, c, occluders, reach + 2, seen,
+                                     depth_sd_m) for c in (0, 1)]
         expected = searchable = 0
         for camera in (0, 1):
-            samples = seen[camera].moved(pose, rig, camera)
+            samples = shown[camera].moved(pose, rig, camera)
             expected += len(samples.points)
             searchable += int((samples.reach >= 1).sum())
             found = search_edges(frames[camera], samples.pixels, samples.normals, reach,
@@ -285,9 +291,10 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
                  + 0.5 * away @ prior @ away)
     rms = float(np.sqrt(np.sum(w * r ** 2) / max(w.sum(), 1e-12)))
     why = None
-    unhidden = sum(sample.alone for sample in seen)
-    if occluders and expected < MIN_UNHIDDEN * unhidden:
-        why = (f"the other model hides {1 - expected / max(unhidden, 1):.0%} of its edges "
+    unhidden = sum(sample.alone for sample in shown)
+    if (occluders or seen is not None) and expected < MIN_UNHIDDEN * unhidden:
+        what = "the other model" if seen is None else "what is in front"
+        why = (f"{what} hides {1 - expected / max(unhidden, 1):.0%} of its edges "
                f"(at most {1 - MIN_UNHIDDEN:.0%})")
     elif inliers < MIN_INLIERS:
         why = f"{inliers} edge points agree with the model, {MIN_INLIERS} needed"

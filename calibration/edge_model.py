@@ -1,6 +1,7 @@
 """Which edges of a box model a stereo camera sees, and where along them to search: the
 model's edges whose faces turn toward the camera, sampled every few pixels, less those
-that a modelled object (this model's other boxes, or another model) hides, each allowed
+that a modelled object (this model's other boxes, or another model) or what the stereo
+pair saw in front of them (a beam, an arm: ``Seen``) hides, each allowed
 to search halfway to its nearest neighbouring edge; and the edges' ends, searched along
 the edges. Frames as in calibration/edge_fit.py (OpenCV, the left camera's)."""
 
@@ -9,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from mapping.camera import Pinhole
@@ -33,6 +35,19 @@ MIN_FACING = 0.1
 MIN_FACE_PX = 1.0
 MIN_END_EDGE_PX = 4.0  # an edge's ends are searched where it projects at least this long
 GROW_PX = 1.5  # modelled occluders are grown by this: no searches next to their outline
+# What is not modelled hides a model's point where the pair saw something nearer there:
+# the left image's disparity at the point's pixel exceeds the point's own by more than
+# this (px): 7.5 cm nearer at 1.1 m, 4 cm at 0.8 m. SGBM averages over its block, at
+# half resolution (sim/stages/task_images.py) 10 px: over the half of it beside an edge,
+# the model's own face turned 70 deg from the camera changes its disparity by
+# 5 b tan(70 deg) / z px, 2.3 px at 0.7 m, and must not hide the model's edge.
+NEARER_PX = 3.0
+# SGBM matches nothing over about its block's half-width (2 px) and its left-right
+# check's pixel on either side of a depth edge: an unmatched pixel takes the largest
+# disparity matched within this many pixels (the nearest surface beside it), so that
+# a model's point next to a nearer surface's outline is taken as hidden, as one next
+# to a modelled occluder's is (GROW_PX).
+FILL_PX = 3
 
 
 @dataclass(frozen=True)
@@ -41,6 +56,39 @@ class Boxes:
 
     centres: np.ndarray
     halves: np.ndarray
+
+
+@dataclass(frozen=True)
+class Seen:
+    """What the stereo pair saw: the left image's disparity (px, NaN where unmatched),
+    with which whatever no model holds (a beam, an arm) hides the points behind it."""
+
+    disparity: np.ndarray
+
+    @classmethod
+    def of(cls, disparity: np.ndarray) -> Seen:
+        """From SGBM's disparity (px, NaN where unmatched): its unmatched pixels filled
+        with the largest disparity matched within FILL_PX of them, if any."""
+        d = np.asarray(disparity, np.float32)
+        side = 2 * FILL_PX + 1
+        nearest = cv2.dilate(np.where(np.isfinite(d), d, -1.0), np.ones((side, side), np.uint8))
+        filled = np.where(np.isfinite(d), d, nearest)
+        return cls(np.where(filled >= 0, filled, np.nan))
+
+    def hides(self, points: np.ndarray, rig: StereoRig, depth_sd_m: float = 0.0) -> np.ndarray:
+        """Which left-camera points (n, 3, m) something seen nearer hides: the disparity at
+        their left pixel exceeds theirs by NEARER_PX and what their own depth's
+        uncertainty (``depth_sd_m``, 3 sd) allows."""
+        h, w = self.disparity.shape
+        u, v = np.rint(rig.project(points, 0)).astype(int).T
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h) & (points[:, 2] > 0)
+        seen = np.full(len(points), np.nan)
+        seen[inside] = self.disparity[v[inside], u[inside]]
+        z = np.maximum(points[:, 2], 1e-6)
+        own = rig.fx * rig.baseline_m / z
+        slack = NEARER_PX + 3 * depth_sd_m * own / z
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(seen) & (seen > own + slack)
 
 
 @dataclass(frozen=True)
@@ -178,13 +226,14 @@ def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
 
 
 def visible_samples(pose: np.ndarray, boxes: Boxes, rig: StereoRig, camera: int,
-                    occluders: list[tuple[np.ndarray, Boxes]], margin_px: float
-                    ) -> Samples:
+                    occluders: list[tuple[np.ndarray, Boxes]], margin_px: float,
+                    seen: Seen | None = None, depth_sd_m: float = 0.0) -> Samples:
     """Points along the model's edges that camera ``camera`` sees at ``pose``, spaced
     SAMPLE_SPACING_PX apart, at least ``margin_px`` inside the image, each with how far
     it may search (halfway to the nearest other edge that faces the camera, this
     model's or an occluder's); ``occluders`` are other modelled objects (pose, boxes)
-    that may hide them."""
+    that may hide them, ``seen`` what the pair saw in front of them (the pose's depth
+    uncertain by ``depth_sd_m``)."""
     ends, owner = _facing_edges(pose, boxes, camera, rig)
     R, t = pose[:3, :3], pose[:3, 3]
     eye = np.array([camera * rig.baseline_m, 0.0, 0.0])
@@ -207,9 +256,7 @@ def visible_samples(pose: np.ndarray, boxes: Boxes, rig: StereoRig, camera: int,
     image_normals = np.stack([-direction[:, 1], direction[:, 0]], -1)
     grow = GROW_PX * world[:, 2] / rig.fx
     hidden = _hidden(eye, world, pose, boxes, np.zeros(len(world)), owner[which])
-    by_others = np.zeros(len(world), bool)
-    for other_pose, other in occluders:
-        by_others |= _hidden(eye, world, other_pose, other, grow, None)
+    by_others = _hidden_by_others(eye, world, occluders, grow, rig, seen, depth_sd_m)
     inside = ((pixels[:, 0] >= margin_px) & (pixels[:, 0] <= rig.width - 1 - margin_px)
               & (pixels[:, 1] >= margin_px) & (pixels[:, 1] <= rig.height - 1 - margin_px))
     a2, b2 = rig.project(a, camera), rig.project(b, camera)
@@ -235,7 +282,20 @@ def visible_samples(pose: np.ndarray, boxes: Boxes, rig: StereoRig, camera: int,
     sides = Samples(local[use], pixels[use], image_normals[use], room[use] / 2, tangent[use],
                      np.zeros(int(use.sum()), bool), which[use], apart[use], alone)
     return _join(sides, _end_samples(ends, owner, pose, boxes, rig, camera, occluders,
-                                     margin_px))
+                                     margin_px, seen, depth_sd_m))
+
+
+def _hidden_by_others(eye: np.ndarray, points: np.ndarray,
+                      occluders: list[tuple[np.ndarray, Boxes]], grow: np.ndarray,
+                      rig: StereoRig, seen: Seen | None, depth_sd_m: float) -> np.ndarray:
+    """Which left-camera points the ``occluders`` (grown by ``grow``, m per point) or
+    what the pair saw in front of them (``seen``) hide from ``eye``."""
+    hidden = np.zeros(len(points), bool)
+    for other_pose, other in occluders:
+        hidden |= _hidden(eye, points, other_pose, other, grow, None)
+    if seen is not None:
+        hidden |= seen.hides(points, rig, depth_sd_m)
+    return hidden
 
 
 def _none() -> Samples:
@@ -254,7 +314,8 @@ def _join(a: Samples, b: Samples) -> Samples:
 
 def _end_samples(ends: np.ndarray, owner: np.ndarray, pose: np.ndarray, boxes: Boxes,
                  rig: StereoRig, camera: int, occluders: list[tuple[np.ndarray, Boxes]],
-                 margin_px: float) -> Samples:
+                 margin_px: float, seen: Seen | None = None, depth_sd_m: float = 0.0
+                 ) -> Samples:
     """Where the facing edges end: each visible end searched along its edge, so that a
     model whose edges all run one way (a thin panel seen from the side shows mostly its
     vertical edges) is still held along them; each searches at most halfway to the
@@ -272,9 +333,7 @@ def _end_samples(ends: np.ndarray, owner: np.ndarray, pose: np.ndarray, boxes: B
     X = points @ R.T + t
     hidden = _hidden(eye, X, pose, boxes, np.zeros(len(X)), mine)
     grow = GROW_PX * X[:, 2] / rig.fx
-    by_others = np.zeros(len(X), bool)
-    for other_pose, other in occluders:
-        by_others |= _hidden(eye, X, other_pose, other, grow, None)
+    by_others = _hidden_by_others(eye, X, occluders, grow, rig, seen, depth_sd_m)
     meets = (np.linalg.norm(points[:, None, None, :] - ends[None], axis=-1) < 1e-9).any(-1)
     near = np.where(meets, np.inf, _segment_distance(pixels, a2, b2))
     room = near.min(axis=1) if near.shape[1] else np.full(len(points), np.inf)

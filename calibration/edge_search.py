@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from scipy.special import ndtr
 
-from .edge_model import Boxes, Samples, StereoRig
+from .edge_model import NEARER_PX, Boxes, Samples, Seen, StereoRig
 
 MIN_STEP = 12.0  # a colour step weaker than this (RGB 0-255 per pixel of profile) is no edge
 MAX_REACH_PX = 20  # edges are aligned at most this far: beyond, texture outnumbers them
@@ -173,15 +173,20 @@ def silhouette(pose: np.ndarray, boxes: Boxes, rig: StereoRig, shape: tuple[int,
 
 
 def _region_scores(mask: np.ndarray, pose: np.ndarray, boxes: Boxes, rig: StereoRig,
-                   camera: int, reach_px: int) -> np.ndarray | None:
+                   camera: int, reach_px: int, unseen: np.ndarray | None = None
+                   ) -> np.ndarray | None:
     """For every image shift within ``reach_px`` ((2 reach + 1)^2, rows then columns):
-    silhouette pixels on ``mask`` minus those off it."""
+    silhouette pixels on ``mask`` minus those off it, but for the ``unseen`` ones
+    (something nearer covers them: they count nothing)."""
     shape = silhouette(pose, boxes, rig, mask.shape, camera)
     ys, xs = np.nonzero(shape)
     if len(ys) == 0:
         return None
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
-    signed = np.pad(2 * mask.astype(np.float32) - 1, reach_px, constant_values=-1)
+    signed = 2 * mask.astype(np.float32) - 1
+    if unseen is not None:
+        signed[unseen & ~mask] = 0.0
+    signed = np.pad(signed, reach_px, constant_values=-1)
     area = signed[y0:y1 + 2 * reach_px, x0:x1 + 2 * reach_px]
     template = shape[y0:y1, x0:x1].astype(np.float32)
     if area.shape[0] < template.shape[0] or area.shape[1] < template.shape[1]:
@@ -189,16 +194,40 @@ def _region_scores(mask: np.ndarray, pose: np.ndarray, boxes: Boxes, rig: Stereo
     return cv2.matchTemplate(area, template, cv2.TM_CCORR)
 
 
+def in_front(seen: Seen, pose: np.ndarray, boxes: Boxes, rig: StereoRig, depth_sd_m: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels of the left and right images where the pair saw something nearer than
+    any point of the model at ``pose`` (its depth uncertain by ``depth_sd_m``), by more
+    than ``Seen.hides`` allows: whether the model is behind them, no image can say."""
+    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+    corners = (boxes.centres[:, None] + signs[None] * boxes.halves[:, None]).reshape(-1, 3)
+    nearest = float(np.max((corners @ pose[:3, :3].T + pose[:3, 3])[:, 2].clip(1e-6) ** -1))
+    own = rig.fx * rig.baseline_m * nearest
+    limit = own + NEARER_PX + 3 * depth_sd_m * own * nearest
+    with np.errstate(invalid="ignore"):
+        left = np.isfinite(seen.disparity) & (seen.disparity > limit)
+    v, u = np.nonzero(left)
+    ur = np.rint(u - seen.disparity[v, u]).astype(int)
+    right = np.zeros_like(left)
+    keep = (ur >= 0) & (ur < left.shape[1])
+    right[v[keep], ur[keep]] = True
+    return left, right
+
+
 def align_region(masks: tuple[np.ndarray, np.ndarray], pose: np.ndarray, boxes: Boxes,
-                 rig: StereoRig, reach_px: int, depth_sd_m: float) -> np.ndarray:
+                 rig: StereoRig, reach_px: int, depth_sd_m: float,
+                 seen: Seen | None = None) -> np.ndarray:
     """The pose, moved from ``pose`` across the image (within ``reach_px``) and along the
     line of sight (within three ``depth_sd_m``), whose silhouettes best lay over
     ``masks``, the object's pixels in the left and right images (found by its colour):
-    each silhouette pixel on a mask counts one, off it minus one. Regions do not alias
-    as parallel edges and texture do, and the two images together tell the distance
-    (by the disparity, where the region's size cannot: a thin panel seen end-on)."""
+    each silhouette pixel on a mask counts one, off it minus one, and nothing where the
+    pair saw something in front of the object (``seen``: ``in_front``). Regions do not
+    alias as parallel edges and texture do, and the two images together tell the
+    distance (by the disparity, where the region's size cannot: a thin panel seen
+    end-on)."""
     centre = pose[:3, :3] @ boxes.centres.mean(axis=0) + pose[:3, 3]
     ray = centre / np.linalg.norm(centre)
+    unseen = (None, None) if seen is None else in_front(seen, pose, boxes, rig, depth_sd_m)
     best, best_pose = -np.inf, pose
     for along in np.linspace(-3 * depth_sd_m, 3 * depth_sd_m, DEPTH_HYPOTHESES):
         moved = pose.copy()
@@ -206,7 +235,8 @@ def align_region(masks: tuple[np.ndarray, np.ndarray], pose: np.ndarray, boxes: 
         z = float((moved[:3, :3] @ boxes.centres.mean(axis=0) + moved[:3, 3])[2])
         if z <= 0.05:
             continue
-        maps = [_region_scores(m, moved, boxes, rig, c, reach_px) for c, m in enumerate(masks)]
+        maps = [_region_scores(m, moved, boxes, rig, c, reach_px, unseen[c])
+                for c, m in enumerate(masks)]
         if any(m is None for m in maps):
             continue
         score = sum(m for m in maps if m is not None)

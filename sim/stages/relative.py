@@ -32,7 +32,7 @@ from calibration.displacement import (
     via_feature,
 )
 from calibration.edge_fit import fit_edges
-from calibration.edge_model import Boxes, StereoRig
+from calibration.edge_model import Boxes, Seen, StereoRig
 from calibration.ekf import StereoCamera
 from calibration.target_frame import Sighting, frame_motion
 from calibration.targets import Target
@@ -280,12 +280,12 @@ class RelativeMeasurer:
         self.stand_ins.pop(name, None)
 
     def measure(self, cam: Camera, images: Images,
-                masks: Masks, panel: PanelBelief
+                masks: Masks, panel: PanelBelief, seen: Seen | None = None
                 ) -> tuple[Relative | None, dict[str, Any], tuple[np.ndarray, np.ndarray] | None,
                            np.ndarray | None]:
         """One camera: its relative measurement, its record, its displacement and
         covariance in the world (None if it measured nothing) and the panel's world pose
-        it fitted."""
+        it fitted (``seen``: the pair's disparity, what hides the models)."""
         name = cam.robot.name
         if isinstance(images, str):
             return None, {"why": images}, None, None
@@ -302,11 +302,11 @@ class RelativeMeasurer:
         if stand_ins and stand_ins[0].placed_for:  # the panel against its target (eq. 4)
             via: StandIn | None = stand_ins[0]
             fit = fit_edges(images, self.panel, self.rig, panel_start, panel_sd,
-                            [(slot_start, self.slot)], masks=masks)
+                            [(slot_start, self.slot)], masks=masks, seen=seen)
             found = Relative(None, None, fit, None, None if fit.ok else f"object: {fit.why}")
         else:
             found = measure_relative(images, self.rig, self.panel, panel_start, panel_sd,
-                                     self.slot, slot_start, slot_sd, masks)
+                                     self.slot, slot_start, slot_sd, masks, seen)
             # where the slot could not be fitted, a target it sighted stands in
             via = None if found.displacement is not None or not stand_ins else min(
                 stand_ins, key=lambda f: float(np.trace(f.covariance)))
@@ -333,10 +333,11 @@ class RelativeMeasurer:
             record["via"] = via.target
         return found, record, (d, c), T_world_cam @ found.object_fit.pose
 
-    def step(self, cameras: list[Camera], pairs: dict[str, tuple[Images, Masks]],
+    def step(self, cameras: list[Camera], pairs: dict[str, tuple[Images, Masks, Seen | None]],
              panel: PanelBelief, prediction: tuple[np.ndarray, np.ndarray] | None = None
              ) -> Measurement:
-        """Every camera's measurement of this step, fused (``prediction``, the displacement
+        """Every camera's measurement of this step from its pair, the panel's pixels and
+        the pair's disparity, fused (``prediction``, the displacement
         expected from the last step and its covariance, world frame, arbitrates where the
         cameras disagree: ``fuse_robust``); the panel's orientation belief takes in every
         fit the fusion kept."""
@@ -347,8 +348,8 @@ class RelativeMeasurer:
         turns: dict[str, np.ndarray] = {}  # what each fit says of the panel's rotation
         for cam in cameras:
             name = cam.robot.name
-            images, masks = pairs[name]
-            found, records[name], in_w, pose = self.measure(cam, images, masks, panel)
+            images, masks, seen = pairs[name]
+            found, records[name], in_w, pose = self.measure(cam, images, masks, panel, seen)
             if found is not None:
                 fits[name] = found
             if in_w is not None and pose is not None and found is not None \

@@ -40,7 +40,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from calibration.displacement import largest_sd, stop_reason
+from calibration.displacement import largest_sd, prediction_start, stop_reason
 from calibration.edge_model import Boxes, StereoRig
 from calibration.panel import window
 from mapping import (
@@ -244,8 +244,8 @@ class InsertionTask(TaskImages):
         for cam in cameras:
             pair = self.stereo_pair(cam.robot.camera, cam.robot.right_camera,
                                     self._slot_window(cam, measurer))
-            pairs[cam.robot.name] = (pair, None) if isinstance(pair, str) else (
-                (pair.left, pair.right), (pair.mask, pair.right_mask))
+            pairs[cam.robot.name] = (pair, None, None) if isinstance(pair, str) else (
+                (pair.left, pair.right), (pair.mask, pair.right_mask), self.seen(pair))
             self._last_pairs[cam.robot.name] = pair
         return measurer.step(cameras, pairs, panel, prediction)
 
@@ -311,6 +311,7 @@ class InsertionTask(TaskImages):
             self.recorder.tick()  # each task step is a step of the recording's timeline
             t = t0 + 2.0 + STEP_S * step
             covariance: np.ndarray | None = None
+            expect: tuple[np.ndarray, np.ndarray] | None = None  # the prediction's start
             agreed = True  # the cameras fused agree within chance
             if cfg.measurement == "relative":
                 if relocate:  # the first step, or after one that measured nothing
@@ -324,6 +325,7 @@ class InsertionTask(TaskImages):
                                           "true_displacement": truth.round(6).tolist()}
                 if found.fused is not None:
                     displacement, covariance = found.fused.displacement, found.fused.covariance
+                    expect = prediction_start(found.fused)
                     agreed = found.fused.agreed
                     record["fused"] = found.fused.summary()
                 log.append(record)
@@ -383,8 +385,8 @@ class InsertionTask(TaskImages):
             measured_sd = largest_sd(spread)
             erred = execution_sd(cfg, float(np.linalg.norm(step_vec)))
             belief.position_sd_m = math.hypot(measured_sd, erred)
-            predicted = (None if covariance is None else
-                         (displacement + step_vec, covariance + erred ** 2 * np.eye(3)))
+            predicted = (None if expect is None else
+                         (expect[0] + step_vec, expect[1] + erred ** 2 * np.eye(3)))
         truth_slot = self.data.site_xpos[self.slot_site]
         return TaskResult(
             self.model.size, cfg.tolerances, frame_robots=frame_robots or [], cameras=rows,

@@ -4,15 +4,17 @@ and the panel's pixels in it (the hull of its yellow)."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
+import cv2
 import mujoco
 import numpy as np
 
-from calibration.edge_model import StereoRig
+from calibration.edge_model import Seen, StereoRig
 from calibration.panel import measuring_window, panel_mask
 from mapping import Pinhole, opencv_pose
-from mapping.stereo import StereoSettings
+from mapping.stereo import StereoSettings, stereo_depth
 from sim.stages.relative import RelativeMeasurer
 from sim.stages.task_result import Camera
 from sim.world.optics import Lens, defocus
@@ -21,6 +23,11 @@ from sim.world.render import Renderer
 MIN_POINTS = 150  # panel pixels (and points) a measurement needs, over all cameras
 BLUR_MARGIN_PX = 48  # blurred around the panel: 3 sigma of the widest blur level and more
 SETTINGS = StereoSettings()
+# What hides the models the task fits (``TaskImages.seen``) is matched at half the
+# resolution: a quarter of the pixels and half the disparities cost an eighth, and a
+# surface is still placed to a fraction of a pixel, far within edge_model.NEARER_PX.
+SEEN_SCALE = 2
+SEEN_SETTINGS = StereoSettings(num_disparities=SETTINGS.num_disparities // SEEN_SCALE)
 # Where the panel is in a view comes from a segmentation at 1/COARSE of the resolution;
 # only the pixels measuring uses around it are then rendered in full.
 COARSE = 2
@@ -115,6 +122,22 @@ class TaskImages:
         right_mask = np.zeros_like(near)
         right_mask[rows, cols] = panel_mask(right[rows, cols])
         return StereoPair(left, right, mask, near, (rows, cols), right_mask)
+
+    def seen(self, pair: StereoPair) -> Seen:
+        """What the pair saw: its left image's disparity (px, full size) over its window,
+        matched at 1/SEEN_SCALE of the resolution (``Seen``: what hides the models the
+        pair's edges are fitted to)."""
+        s, p, b = SEEN_SCALE, self.pinhole, self.rig.baseline_m
+        small = dataclasses.replace(p, width=p.width // s, height=p.height // s, fx=p.fx / s,
+                                    fy=p.fy / s, cx=(p.cx + 0.5) / s - 0.5,
+                                    cy=(p.cy + 0.5) / s - 0.5)
+        left, right = (cv2.resize(im, (small.width, small.height), interpolation=cv2.INTER_AREA)
+                       for im in (pair.left, pair.right))
+        window = tuple(slice(w.start // s, -(-w.stop // s)) for w in pair.window)
+        depth = stereo_depth(left, right, small, b, SEEN_SETTINGS, (window[0], window[1]))
+        disparity = cv2.resize(s * small.fx * b / depth, (p.width, p.height),
+                               interpolation=cv2.INTER_NEAREST)
+        return Seen.of(disparity)
 
     def _slot_window(self, cam: Camera, measurer: RelativeMeasurer
                      ) -> tuple[slice, slice] | None:
