@@ -26,20 +26,6 @@ def pytest_configure(config: pytest.Config) -> None:
             capture.stop_global_capturing()  # the new session writes to the terminal
         pin(restart=True)
 
-# The files whose fixtures run longest, first: scripts/test gives each worker whole files,
-# handed out in this order (--no-loadscope-reorder: pytest-xdist would otherwise hand out
-# the files with the most tests first, and the regression file, with 5, went last and
-# ran alone for 12 minutes), and the longest first keeps every core busy to the end (the
-# two regression sweeps, on two workers of their own, are about a third of the suite).
-LONGEST_FIRST = ("test_regression.py", "test_sweep.py", "test_episode.py",
-                 "test_scenario_files.py")
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(LONGEST_FIRST)))
-
-
 ROOT = Path(__file__).resolve().parent.parent
 TASKCAM = Path(sys.executable).parent / "taskcam"
 
