@@ -157,14 +157,17 @@ def align(frames: list[np.ndarray], samples: list[Samples], reach_px: int
     return [np.array([du[peaks][i], dv[peaks][i]]) for i in order]
 
 
+# a box's eight corners, in half extents
+CORNERS = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+
+
 def silhouette(pose: np.ndarray, boxes: Boxes, rig: StereoRig, shape: tuple[int, int],
                camera: int = 0) -> np.ndarray:
     """The model's silhouette in camera ``camera``'s image (bool, ``shape``): its boxes'
     projected hulls."""
     out = np.zeros(shape, np.uint8)
-    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
     for c, h in zip(boxes.centres, boxes.halves, strict=True):
-        X = (c + signs * h) @ pose[:3, :3].T + pose[:3, 3]
+        X = (c + CORNERS * h) @ pose[:3, :3].T + pose[:3, 3]
         if (X[:, 2] <= 0).any():
             continue
         hull = cv2.convexHull(np.round(rig.project(X, camera)).astype(np.int32))
@@ -199,8 +202,7 @@ def in_front(seen: Seen, pose: np.ndarray, boxes: Boxes, rig: StereoRig, depth_s
     """The pixels of the left and right images where the pair saw something nearer than
     any point of the model at ``pose`` (its depth uncertain by ``depth_sd_m``), by more
     than ``Seen.hides`` allows: whether the model is behind them, no image can say."""
-    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
-    corners = (boxes.centres[:, None] + signs[None] * boxes.halves[:, None]).reshape(-1, 3)
+    corners = (boxes.centres[:, None] + CORNERS[None] * boxes.halves[:, None]).reshape(-1, 3)
     nearest = float(np.max((corners @ pose[:3, :3].T + pose[:3, 3])[:, 2].clip(1e-6) ** -1))
     own = rig.fx * rig.baseline_m * nearest
     limit = own + NEARER_PX + 3 * depth_sd_m * own * nearest
