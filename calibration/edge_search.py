@@ -107,14 +107,21 @@ def merge_bias_px(distance_px: np.ndarray, blur_sd_px: float) -> np.ndarray:
     the pixels' area, the search's central difference), two steps closer than a few
     blur widths merge into one, found between or beyond them. Measured on
     :func:`search_edges` itself with synthetic steps; 0 for isolated edges."""
-    table = _merge_table()
-    blur = float(np.clip(blur_sd_px, MERGE_BLURS_PX[0], MERGE_BLURS_PX[-1]))
-    row = np.array([np.interp(blur, MERGE_BLURS_PX, table[:, j])
-                    for j in range(len(MERGE_DISTANCES_PX))])
-    # less what the search errs by on an isolated step: that is each point's own noise
-    excess = np.sqrt(np.maximum(row ** 2 - row[-1] ** 2, 0.0))
+    excess = _merge_excess(float(np.clip(blur_sd_px, MERGE_BLURS_PX[0], MERGE_BLURS_PX[-1])))
     d = np.asarray(distance_px, float)
     return np.where(np.isfinite(d), np.interp(d, MERGE_DISTANCES_PX, excess, right=0.0), 0.0)
+
+
+@functools.lru_cache(maxsize=64)
+def _merge_excess(blur: float) -> np.ndarray:
+    """:func:`merge_bias_px`'s bias per tabulated distance at one blur (px), less what
+    the search errs by on an isolated step: that is each point's own noise."""
+    table = _merge_table()
+    row = np.array([np.interp(blur, MERGE_BLURS_PX, table[:, j])
+                    for j in range(len(MERGE_DISTANCES_PX))])
+    excess = np.sqrt(np.maximum(row ** 2 - row[-1] ** 2, 0.0))
+    excess.flags.writeable = False  # shared by every call at this blur
+    return excess
 
 
 def search_reach_px(pose: np.ndarray, boxes: Boxes, rig: StereoRig, sd_m: float,
