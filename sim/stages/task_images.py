@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 
 from calibration.edge_model import Seen, StereoRig
+from calibration.edge_search import CORNERS
 from calibration.panel import measuring_window, panel_mask
 from mapping import Pinhole, opencv_pose
 from mapping.stereo import StereoSettings, stereo_depth
@@ -146,9 +147,8 @@ class TaskImages:
         T_cam_world = np.linalg.inv(opencv_pose(cam.believed))
         start = measurer.slot_fits.get(cam.robot.name, T_cam_world @ measurer.belief.pose)
         slot = measurer.slot
-        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
-        corners = np.concatenate([c + signs * h for c, h in zip(slot.centres, slot.halves,
-                                                               strict=True)])
+        corners = np.concatenate([c + CORNERS * h for c, h in zip(slot.centres, slot.halves,
+                                                                 strict=True)])
         X = corners @ start[:3, :3].T + start[:3, 3]
         if (X[:, 2] <= 0.05).any():
             return None
