@@ -17,6 +17,7 @@ from calibration.panel import panel_mask
 from mapping import LyingPose, Pinhole, pose_covariance, voxels_of
 from sim.config.scenario import ObstacleConfig, Scenario, load_scenario
 from sim.experiments.audit import audit_run
+from sim.stages.place import REJECTED_RADIUS_M
 from sim.stages.record import Recorder
 from sim.stages.relative import SlotBelief
 from sim.stages.task import InsertionTask, Replacement, panel_model
@@ -206,10 +207,14 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     assert r1["placement"] == max(p["index"] for p in r1["placements"] if p["placed"]) >= 1
     assert r1["seen_from_placement"] == 0
     assert all(seen["placement"] == 0 for seen in r1["sightings"])
-    # the re-placement searched the rating function again on the map as the task left
-    # it (its best view may be the first one again: the blinding is not in the map) and
+    # the re-placement searched the rating function again, for the insertion site, on
+    # the map as the task left it, away from the view where the panel was lost (the
+    # blinding is not in the map: that view would otherwise rate as well as before), and
     # the robot went where it chose, planned and moved
     assert second["search"]["candidates_evaluated"] > 0 and second["candidates_tried"] >= 1
+    assert again["best_rating"] > 0 and second["target"]["name"] == "insertion site"
+    away = np.subtract(second["candidate_position"], first["candidate_position"])
+    assert np.linalg.norm(away) >= REJECTED_RADIUS_M
     assert second["path"]["reason"] is None and second["motion"]["contact_steps"] == 0
     assert r1["candidate_position"] == ended["candidate_position"]
     assert np.allclose(r1["pose"]["position"], ended["pose"]["position"], atol=1e-6)

@@ -18,7 +18,14 @@ from sim.stages.corrector import PoseCorrector
 from sim.stages.place import place, ranked_field
 from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import RatingProblem
-from sim.stages.relative import SlotBelief, StandIn, believed_slot, slot_half_width, stand_in
+from sim.stages.relative import (
+    SlotBelief,
+    StandIn,
+    believed_slot,
+    slot_half_width,
+    slot_outer_half_width,
+    stand_in,
+)
 from sim.stages.site_view import SiteWatch, box_corners
 from sim.stages.slot_target import nominal_panel, nominal_slot, stereo_rig
 from sim.stages.task import InsertionTask, Replacement, panel_model
@@ -74,17 +81,20 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
     # still during the task and were accounted for when the cameras were placed
     watch = SiteWatch(world.grid, s, slot.position, task.model, slot.pose[:3, 1],
                       slot_half_width(task.slot_boxes))
+    # found, as the slot target is (sim/stages/slot_target.py), by the walls beside it
     site = Target("insertion site", "site", "", watch.site.position, watch.site.normal,
-                  watch.site.radius, 0.0, watch.site.half_length, watch.site.axis)
+                  watch.site.radius, 0.0, watch.site.half_length, watch.site.axis,
+                  detect_radius=slot_outer_half_width(task.slot_boxes))
 
     def replace(cam: Camera, step: int, reason: str, current: float | None,
                 panel: np.ndarray) -> Replacement | None:
-        """Place a camera again on the updated map. One whose view of the insertion site
-        fell (``current``, its rating now) is searched for the best view of the site, the
-        panel where it was measured as one more occluder, and moves there unless that
-        view is not worth the move; one that lost the panel (``current`` None) is placed
-        for the targets again, as it first was, wherever it can see them past the
-        panel."""
+        """Place a camera again on the updated map, for the best view of the insertion
+        site (the task's target is the displacement, issue 19), the panel where it was
+        measured as one more occluder. One whose view of the site fell (``current``, its
+        rating now) moves there unless that view is not worth the move; one that lost
+        the panel (``current`` None) moves to the best view somewhere else than where it
+        lost it. Where no view of the site rates (the panel covers it from everywhere),
+        the camera stays."""
         if not s.task.replace:
             return None
         name = cam.robot.name
@@ -92,17 +102,22 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
         taken = [p.commanded for other, p in at.items()
                  if other != name and p.commanded is not None]
         problem = RatingProblem(world.grid, s)
-        record: dict[str, Any] = {"step": step, "robot": name, "reason": reason}
-        goals, extra = targets, [box_corners(task.model, panel)]  # the panel where it is
+        extra = [box_corners(task.model, panel)]  # the panel where it is
+        ranked = ranked_field(world, problem, cam.robot, (site,), taken, method, extra)
+        best = float(ranked.ratings.total.max()) if len(ranked.ratings.total) else 0.0
+        record: dict[str, Any] = {"step": step, "robot": name, "reason": reason,
+                                  "best_rating": round(best, 6)}
         if current is not None:
-            goals = (site,)
-            ranked = ranked_field(world, problem, cam.robot, goals, taken, method, extra)
-            best = float(ranked.ratings.total.max()) if len(ranked.ratings.total) else 0.0
-            record.update(site_rating=round(current, 6), best_rating=round(best, 6))
+            record["site_rating"] = round(current, 6)
             if not watch.trigger.worth_the_move(name, current, best):
                 return Replacement({**record, "placed": False, "worth_the_move": False}, None)
-        again = place(world, problem, cam.robot, taken, goals, method, corrector, prior_sd,
-                      index=len(history), step=step, reason=reason, extra=extra)
+        elif best == 0.0:
+            return Replacement({**record, "placed": False}, None)
+        here = at[name].commanded
+        avoid = [here] if current is None and here is not None else []
+        again = place(world, problem, cam.robot, taken, (site,), method, corrector, prior_sd,
+                      index=len(history), step=step, reason=reason, extra=extra, avoid=avoid,
+                      ranked=ranked)
         history.append(again)
         record.update(placed=again.placed, placement=again.index)
         if not again.placed:

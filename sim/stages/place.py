@@ -106,15 +106,20 @@ def ranked_field(world: World, problem: RatingProblem, robot: Robot,
 def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.ndarray],
           targets: tuple[Target, ...], method: str, corrector: PoseCorrector | None,
           prior_sd: tuple[float, float], *, index: int = 0, step: int | None = None,
-          reason: str = "initial", extra: Sequence[np.ndarray] = ()) -> Placement:
+          reason: str = "initial", extra: Sequence[np.ndarray] = (),
+          avoid: Sequence[np.ndarray] = (), ranked: RatingField | None = None) -> Placement:
     """Search, plan and move ``robot`` to view one of ``targets``, given the camera
     positions already ``taken`` (m) and the placement ``method``. ``index``, ``step`` and
     ``reason`` say which of the robot's placements this is (a re-placement during the
     task has a step); ``prior_sd`` is an uncorrected pose's standard deviation (m, deg);
-    ``extra``: further occluders (:func:`ranked_field`)."""
+    ``extra``: further occluders (:func:`ranked_field`); candidates within
+    REJECTED_RADIUS_M of a position in ``avoid`` (m) are skipped as a failed one's are;
+    ``ranked``: the candidates :func:`ranked_field` gives for these arguments, if the
+    caller has them already."""
     s, belief = world.scenario, world.belief
     q = s.search
-    ranked = ranked_field(world, problem, robot, targets, taken, method, extra)
+    if ranked is None:
+        ranked = ranked_field(world, problem, robot, targets, taken, method, extra)
     world.recorder.candidates(robot.name, ranked.ratings.positions, ranked.ratings.total)
     counts: dict[str, Any] = {"strategy": ranked.strategy, "evaluated": ranked.evaluated}
     tried = undetectable = out_of_frame = 0
@@ -134,7 +139,7 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                          s.robots.move_base, drive_m=q.drive_m, checks=q.planning_checks,
                          rng=world.rng, keep_out=corridor,
                          places=world.places, **world.planner_maps(q.planner_world))
-    rejected: list[np.ndarray] = []
+    rejected = [np.asarray(p, float) for p in avoid]
     standless = 0  # candidates with no place for the base to stand: cheap, not counted
     order = ranked.ranked()
     with world.timer("ik"):
