@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
 from sim.config.sweep import load_sweep
+from sim.stages.slot_target import SLOT, SLOT_SITE
 from sim.world.scene import build_scene
 
 TABLE1 = Path(__file__).resolve().parent.parent / "scenarios" / "table1.toml"
@@ -34,10 +35,16 @@ NEAR_M = 0.9  # the issue's "nearer than 0.9 m"
 
 
 def target_positions() -> dict[str, np.ndarray]:
-    """Each target's nominal position (m) in Table 1's scene."""
+    """Each target's nominal position (m) in Table 1's scene: the holes, and the slot
+    (the task's primary target since issue 21) at its own point between the rails' feet."""
+    import mujoco  # after sim's pins
+
     scenario = load_sweep(TABLE1).scenario
     scene = build_scene(dataclasses.replace(scenario, obstacles=()))
-    return {t.name: np.asarray(t.position) for t in scene.targets}
+    data = scene.make_data()
+    mujoco.mj_kinematics(scene.model, data)
+    return {t.name: np.asarray(t.position) for t in scene.targets} | {
+        SLOT: data.site(SLOT_SITE).xpos.copy()}
 
 
 def distances(db: Path, targets: dict[str, np.ndarray]) -> dict[tuple[float, str], list[float]]:

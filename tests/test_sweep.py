@@ -229,6 +229,28 @@ def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
                                  for (other, d), (at, n) in sorted(limit.items())
                                  if other == method)
         for method in sorted({m for m, _ in limit})))
+    # what each method's cameras did, by hand from the same records
+    by_cell: dict[tuple[str, float], list[dict]] = {}
+    with sqlite3.connect(db) as c:
+        for density, record in c.execute("SELECT density, record FROM trials"):
+            for m in json.loads(record)["methods"]:
+                by_cell.setdefault((m["method"], density), []).append(m)
+    for (method, density), runs in by_cell.items():
+        n = len(runs)
+        placed = sum(r["placed"] for m in runs for r in m["robots"]) / n
+        saw = sum(r["placed"] and r["seen"] for m in runs for r in m["robots"]) / n
+        blind = sum(not any(r["placed"] and r["seen"] for r in m["robots"]) for m in runs)
+        moved = sum(m["replacements"] or 0 for m in runs) / n
+        finals = sorted(1e3 * m["final_displacement_m"] for m in runs if m["attempted"])
+        final = "-"
+        if finals:
+            median = (finals[(len(finals) - 1) // 2] + finals[len(finals) // 2]) / 2
+            at = 0.9 * (len(finals) - 1)  # the 90th percentile, between ranks
+            above = finals[min(int(at) + 1, len(finals) - 1)]
+            p90 = finals[int(at)] + (at - int(at)) * (above - finals[int(at)])
+            final = f"{median:.2f} / {p90:.2f}"
+        assert (f"| {method} | {100 * density:g} % | {n} | {placed:.2f} | {saw:.2f} | "
+                f"{round(100 * blind / n)} % | {moved:.2f} | {final} |") in text
     assert text == (tmp_path / "out" / "report.md").read_text()
     assert "(100)" in text  # the paper's optimal at 5 %, 20 % tolerance, with secondary
     csv_lines = (tmp_path / "out" / "report.csv").read_text().splitlines()

@@ -155,6 +155,72 @@ def bands_markdown(bands: dict[float, list[float]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+@dataclass(frozen=True)
+class Views:
+    """What one method's cameras did at one requested density, over its trials: the
+    evidence behind a cell (issue 21: why a rate is what it is)."""
+
+    method: str
+    density: float
+    trials: int
+    placed: float  # cameras placed, mean a trial
+    saw: float  # cameras that saw the target they were placed for, mean a trial
+    blind: int  # trials in which no camera saw its target
+    replacements: float  # cameras placed again during the task, mean a trial
+    final_mm: tuple[float, float] | None  # attempted tasks' final displacement (mm):
+    # median and 90th percentile (numpy's linear interpolation)
+
+
+def camera_views(db: str | Path) -> list[Views]:
+    """Per method and requested density, from the trials' records: how many cameras were
+    placed and saw their target, how often none did, the re-placements, and where the
+    attempted tasks ended."""
+    import numpy as np
+
+    rows: dict[tuple[str, float], list[dict[str, Any]]] = defaultdict(list)
+    with Results(db, readonly=True) as results:
+        for density, record in results.db.execute(
+                "SELECT density, record FROM trials ORDER BY density_index, trial"):
+            for method in json.loads(record)["methods"]:
+                rows[(method["method"], density)].append(method)
+    out = []
+    for (name, density), runs in sorted(rows.items()):
+        robots = [m["robots"] for m in runs]
+        finals = [1e3 * m["final_displacement_m"] for m in runs
+                  if m.get("attempted") and m.get("final_displacement_m") is not None]
+        out.append(Views(
+            name, density, len(runs),
+            sum(sum(bool(r["placed"]) for r in rs) for rs in robots) / len(runs),
+            sum(sum(bool(r["placed"] and r["seen"]) for r in rs) for rs in robots) / len(runs),
+            sum(not any(r["placed"] and r["seen"] for r in rs) for rs in robots),
+            sum(int(m.get("replacements") or 0) for m in runs) / len(runs),
+            (float(np.median(finals)), float(np.percentile(finals, 90))) if finals else None))
+    return out
+
+
+def views_markdown(views: list[Views]) -> str:
+    """The cameras' record per method and density, as a table."""
+    if not views:
+        return ""
+    lines = ["What each method's cameras did (the trials' records): cameras placed and "
+             "cameras that saw their target, mean a trial (of the robots); trials where "
+             "none saw one; re-placements during the task, mean a trial; the attempted "
+             "tasks' final displacement, median / 90th percentile", "",
+             "| method | density | trials | placed | saw target | none saw | "
+             "re-placements | final mm |", "|---|---|---:|---:|---:|---:|---:|---|"]
+    for v in views:
+        final = "-" if v.final_mm is None else f"{v.final_mm[0]:.2f} / {v.final_mm[1]:.2f}"
+        lines.append(f"| {v.method} | {100 * v.density:g} % | {v.trials} | {v.placed:.2f} | "
+                     f"{v.saw:.2f} | {percent_of(v.blind, v.trials)} | "
+                     f"{v.replacements:.2f} | {final} |")
+    return "\n".join(lines) + "\n"
+
+
+def percent_of(count: int, total: int) -> str:
+    """``count`` of ``total`` in whole percent."""
+    return f"{round(100 * count / total)} %" if total else "-"
+
+
 def percent(successes: int, trials: int) -> str:
     """A success rate as ``rate [Wilson 95 % interval]``, in whole percent."""
     lo, hi = wilson(successes, trials)
@@ -269,7 +335,8 @@ def report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:
     folder = Path(out) if out is not None else db.parent
     folder.mkdir(parents=True, exist_ok=True)
     text = markdown(table)
-    for extra in (step_limit_markdown(step_limit(db)), bands_markdown(elevation_bands(db))):
+    for extra in (step_limit_markdown(step_limit(db)), bands_markdown(elevation_bands(db)),
+                  views_markdown(camera_views(db))):
         if extra:
             text += "\n" + extra
     ordered = claims.markdown(tested)
