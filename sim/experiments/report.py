@@ -182,7 +182,8 @@ def camera_views(db: str | Path) -> list[Views]:
         for density, record in results.db.execute(
                 "SELECT density, record FROM trials ORDER BY density_index, trial"):
             for method in json.loads(record)["methods"]:
-                rows[(method["method"], density)].append(method)
+                if "robots" in method:  # a record that kept its robots (taskcam sweep's)
+                    rows[(method["method"], density)].append(method)
     out = []
     for (name, density), runs in sorted(rows.items()):
         robots = [m["robots"] for m in runs]
