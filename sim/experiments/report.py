@@ -106,15 +106,22 @@ def cells(db: str | Path) -> list[Cell]:
     return sorted(out, key=lambda c: (-c.tolerance, order.get(c.method, 99), c.density))
 
 
+def trial_records(db: str | Path) -> list[tuple[float, dict[str, Any]]]:
+    """Every trial's requested density and its record, in the sweep's order (the
+    database opened read-only)."""
+    with Results(db, readonly=True) as results:
+        return [(density, json.loads(record)) for density, record in results.db.execute(
+            "SELECT density, record FROM trials ORDER BY density_index, trial")]
+
+
 def elevation_bands(db: str | Path) -> dict[float, list[float]]:
     """Each requested density's mean blocked share per 10 deg elevation band (10-20 deg
     first), over the trials that recorded it (sweeps before issue 21 did not)."""
     by_density: dict[float, list[list[float]]] = defaultdict(list)
-    with Results(db, readonly=True) as results:
-        for density, record in results.db.execute("SELECT density, record FROM trials"):
-            shares = json.loads(record).get("blocked_by_elevation")
-            if shares:
-                by_density[density].append(shares)
+    for density, record in trial_records(db):
+        shares = record.get("blocked_by_elevation")
+        if shares:
+            by_density[density].append(shares)
     return {d: [sum(col) / len(col) for col in zip(*rows, strict=True)]
             for d, rows in sorted(by_density.items())}
 
@@ -178,12 +185,10 @@ def camera_views(db: str | Path) -> list[Views]:
     import numpy as np
 
     rows: dict[tuple[str, float], list[dict[str, Any]]] = defaultdict(list)
-    with Results(db, readonly=True) as results:
-        for density, record in results.db.execute(
-                "SELECT density, record FROM trials ORDER BY density_index, trial"):
-            for method in json.loads(record)["methods"]:
-                if "robots" in method:  # a record that kept its robots (taskcam sweep's)
-                    rows[(method["method"], density)].append(method)
+    for density, record in trial_records(db):
+        for method in record["methods"]:
+            if "robots" in method:  # a record that kept its robots (taskcam sweep's)
+                rows[(method["method"], density)].append(method)
     out = []
     for (name, density), runs in sorted(rows.items()):
         robots = [m["robots"] for m in runs]
