@@ -5,8 +5,9 @@ Runs the default scenario (errors and correction on) over seeds with each tracke
 variant, on the same seeds in one run: ``taskcam`` (the scenario as it is), ``baseline``
 (the first tracker: a frame every 3 degrees or 3 cm of the camera's travel, SIFT in
 both images matched along the rows) and
-``orb`` (the scenario's tracker with ORB corners refined to sub-pixel instead of SIFT)
-and ``correlation`` (right pixels by correlation along the row instead of SIFT matching).
+``orb`` (the scenario's tracker with ORB corners refined to sub-pixel instead of SIFT),
+``correlation`` (right pixels by correlation along the row instead of SIFT matching)
+and ``flow`` (right pixels by optical flow from the left image instead).
 For each it compares, against the simulator's truth, the camera pose before correction
 (the commanded one), after it with each estimator on the same fiducials (the paper's
 linear fit, Kabsch, SQPnP), and the bundle adjustment's own last pose; and the wall time
@@ -45,6 +46,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "baseline": {"frames": "fixed", "detector": "sift", "stereo": "descriptors"},
     "orb": {"detector": "orb"},
     "correlation": {"stereo": "correlation"},
+    "flow": {"stereo": "flow"},
 }
 # Wall seconds a move's correction may spend on each part (issue 23: 1.5 s in all, one
 # worker): about five stereo frames of two renders, a segmentation and SIFT on the pair,

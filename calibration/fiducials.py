@@ -20,6 +20,7 @@ within ``spacing_px`` of it (the penalty for fiducials close to each other).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
@@ -91,6 +92,15 @@ def visual_contrast(gray: np.ndarray, uv: np.ndarray) -> float:
     return best_c * best_w
 
 
+@cache
+def _frequency(w: int) -> np.ndarray:
+    """The spatial frequency (cycles a voxel) of each bin of a w^3 cube's transform
+    (kept for every call: read-only)."""
+    f = np.sqrt(sum(g ** 2 for g in np.meshgrid(*[np.fft.fftfreq(w)] * 3, indexing="ij")))
+    f.flags.writeable = False
+    return f
+
+
 def depth_contrast(grid: OccupancyGrid, p: np.ndarray, point: np.ndarray) -> float:
     """h = H w from the 3-D Fourier transform of the occupancy ``p`` around the point."""
     i = grid.index(point[None])[0]
@@ -101,8 +111,7 @@ def depth_contrast(grid: OccupancyGrid, p: np.ndarray, point: np.ndarray) -> flo
             break
         cube = p[lo[0]:lo[0] + w, lo[1]:lo[1] + w, lo[2]:lo[2] + w]
         power = np.abs(np.fft.fftn(cube - cube.mean())) ** 2
-        f = np.sqrt(sum(g ** 2 for g in np.meshgrid(*[np.fft.fftfreq(w)] * 3,
-                                                     indexing="ij")))
+        f = _frequency(w)
         total = power.sum()
         if total <= 1e-12:
             continue

@@ -30,7 +30,10 @@ triangulated over the camera's whole path, not just the head's baseline.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -38,8 +41,10 @@ from scipy.spatial import cKDTree
 
 from .bundle import BundleResult, Keyframe, refine, triangulate
 from .ekf import StereoCamera
+from .flow import flow_disparities, nearest_disparity
 from .pose import DegenerateGeometryError, invert, rotation_deg, sqpnp
 
+T = TypeVar("T")
 # A descriptor further than this from a fiducial's matches nothing: SIFT's are
 # L2-normalised to 512, ORB's are 256 bits (Hamming distance; 64 is a quarter of them).
 DESCRIPTOR_MAX = {"sift": 300.0, "orb": 64.0}
@@ -50,7 +55,8 @@ class TrackerSettings:
     """How fiducials are found and followed (pixels unless stated)."""
 
     detector: str = "sift"  # "sift" or "orb" (FAST corners refined to sub-pixel)
-    stereo: str = "descriptors"  # right pixels by "descriptors" or "correlation" along the row
+    stereo: str = "descriptors"  # right pixels by "descriptors", "flow" (calibration/flow.py)
+    # or "correlation" along the row
     row_px: float = 1.0  # with "descriptors": a stereo match's rows differ by at most this
     features: int = 800  # keypoints per image at most
     contrast: float = 0.01  # SIFT contrast threshold (of intensities in [0, 1])
@@ -152,6 +158,7 @@ class FeatureFinder:
 
     def __init__(self, settings: TrackerSettings) -> None:
         self.settings = settings
+        self._pool: ThreadPoolExecutor | None = None  # for the right image's keypoints
         if settings.detector == "sift":
             # every keypoint (then :func:`spread`), each where it is: OpenCV
             # otherwise places them a quarter pixel off in u and v (its doubled first
@@ -192,31 +199,51 @@ class FeatureFinder:
                expected: np.ndarray | None = None) -> StereoFeatures:
         """Keypoints of the left image (RGB or gray) found again in the right one on the
         same row, at a positive disparity: as the keypoint of the right image whose
-        descriptor matches, or with ``stereo = "correlation"`` by correlation along the
-        row (:func:`row_disparities`).
+        descriptor matches (found on a second thread meanwhile: :meth:`_meanwhile`), with
+        ``stereo = "flow"`` by optical flow (calibration/flow.py), or with
+        ``"correlation"`` by correlation along the row (:func:`row_disparities`).
         ``ignore_left`` is a boolean mask of pixels not to use (the robots' own bodies: a
         right pixel on a robot can only pair with a left one there). ``expected`` (m, 3):
         (u, v, disparity) where known fiducials are predicted, so that keypoints are
         extracted there (:func:`spread`); in the right image at u - disparity."""
         gl = _gray(left)
         uv = None if expected is None else expected[:, :2]
+        if self.settings.stereo == "descriptors":  # the right image's keypoints meanwhile
+            in_right = None if expected is None else expected[:, :2] - expected[:, 2:3] * [1, 0]
+            gr = _gray(right)
+            right_keys = self._meanwhile(self.keypoints, gr, _usable(None, gr.shape), in_right)
         pts, desc = self.keypoints(gl, _usable(ignore_left, left.shape), uv)
         if desc is None:
             return StereoFeatures(np.zeros((0, 3)), np.zeros((0, 0), np.float32))
         if self.settings.stereo == "descriptors":
-            in_right = None if expected is None else expected[:, :2] - expected[:, 2:3] * [1, 0]
-            d = self._descriptor_disparities(_gray(right), pts, desc, in_right)
+            d = self._descriptor_disparities(pts, desc, *right_keys.result())
+        elif self.settings.stereo == "flow":
+            most = self.settings.max_disparity_px
+            guess = nearest_disparity(pts, expected, 0.25 * most)  # a quarter: about 1.2 m
+            d = flow_disparities(gl, _gray(right), pts, guess, self.settings.row_px, most)
         else:
             d = row_disparities(gl, _gray(right), pts, self.settings)
         keep = np.isfinite(d) & (d > 0.5)
         return StereoFeatures(np.column_stack([pts[keep], d[keep]]), desc[keep])
 
-    def _descriptor_disparities(self, right: np.ndarray, pts: np.ndarray, desc: np.ndarray,
-                                expected: np.ndarray | None = None) -> np.ndarray:
-        """Disparity of each left keypoint to the right keypoint its descriptor matches
-        (clearly closer than the runner-up, its row within ``row_px``); NaN where none."""
+    def _meanwhile(self, work: Callable[..., T], *args: Any) -> Future[T]:
+        """``work(*args)`` on a second thread while the caller goes on, when OpenCV may
+        use more than one (a sweep's workers are pinned to one: sim/experiments/
+        runner.py); otherwise done now. SIFT gives the same keypoints either way."""
+        if cv2.getNumThreads() > 1:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=1)
+            return self._pool.submit(work, *args)
+        done: Future[T] = Future()
+        done.set_result(work(*args))
+        return done
+
+    def _descriptor_disparities(self, pts: np.ndarray, desc: np.ndarray, pr: np.ndarray,
+                                dr: np.ndarray | None) -> np.ndarray:
+        """Disparity of each left keypoint (``pts``, ``desc``) to the right keypoint
+        (``pr``, ``dr``) its descriptor matches (clearly closer than the runner-up, its
+        row within ``row_px``); NaN where none."""
         s = self.settings
-        pr, dr = self.keypoints(right, _usable(None, right.shape), expected)
         out = np.full(len(pts), np.nan)
         if dr is None or len(pr) < 2:
             return out

@@ -12,6 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calibration.ekf import StereoCamera
+from calibration.flow import flow_disparities, nearest_disparity
 from calibration.pose import invert
 from calibration.tracking import (
     SCALE,
@@ -68,7 +69,34 @@ def test_row_disparities_refuse_a_flat_patch_and_a_shift_beyond_the_range():
     assert not np.isfinite(d[0]) or abs(d[0] - 200.0) > 1.0
 
 
-@pytest.mark.parametrize("stereo, within_px", [("correlation", 0.05), ("descriptors", 0.2)])
+@pytest.mark.parametrize("disparity, guess", [(12.0, 40.0), (37.3, 0.0), (80.55, 60.0)])
+def test_flow_disparities_recover_a_sub_pixel_shift_from_a_guess_far_off(disparity, guess):
+    left = _texture(1)
+    right = _shifted(left, disparity)
+    pts = np.random.default_rng(2).uniform([100, 40], [600, 440], (200, 2))
+    expected = np.array([[320.0, 240.0, guess]])  # one known fiducial's disparity, for all
+    guess = nearest_disparity(pts, expected, 0.0)
+    d = flow_disparities(left, right, pts, guess, row_px=1.0, most_px=160.0)
+    found = np.isfinite(d)
+    assert found.mean() > 0.9
+    assert np.median(np.abs(d[found] - disparity)) < 0.05
+    assert np.max(np.abs(d[found] - disparity)) < 0.2
+
+
+def test_flow_disparities_refuse_what_the_right_image_does_not_show():
+    left = _texture(3)
+    right = _shifted(left, 20.0)
+    right[150:330, 200:420] = _texture(9)[150:330, 200:420]  # something else stands there
+    pts = np.array([[330.0, 240.0], [500.0, 240.0]])  # behind it, and clear of it
+    d = flow_disparities(left, right, pts, np.full(2, 40.0), row_px=1.0, most_px=160.0)
+    assert np.isnan(d[0])
+    assert abs(d[1] - 20.0) < 0.05
+    beyond = flow_disparities(left, _shifted(left, 20.0), pts, np.full(2, 10.0), 1.0, 15.0)
+    assert np.all(np.isnan(beyond))  # a disparity over the range is refused
+
+
+@pytest.mark.parametrize("stereo, within_px", [("correlation", 0.05), ("descriptors", 0.2),
+                                               ("flow", 0.05)])
 def test_stereo_features_pair_the_left_keypoints_with_their_disparity(stereo, within_px):
     left = cv2.cvtColor(_texture(5), cv2.COLOR_GRAY2RGB)
     right = cv2.cvtColor(_shifted(_texture(5), 25.0), cv2.COLOR_GRAY2RGB)
@@ -79,6 +107,27 @@ def test_stereo_features_pair_the_left_keypoints_with_their_disparity(stereo, wi
     assert np.all(found.z[:, 0] > 320)
     assert np.median(np.abs(found.z[:, 2] - 25.0)) < within_px
     assert found.descriptors.shape == (len(found), 128)
+
+
+def test_stereo_features_are_the_same_with_the_right_image_on_a_second_thread():
+    """OpenCV on one thread (a sweep's worker) finds the right image's keypoints after
+    the left's; on more, meanwhile on a second thread: the features must not differ."""
+    left = cv2.cvtColor(_texture(7), cv2.COLOR_GRAY2RGB)
+    right = cv2.cvtColor(_shifted(_texture(7), 31.4), cv2.COLOR_GRAY2RGB)
+    expected = np.array([[200.0, 200.0, 31.0], [500.0, 300.0, 30.0]])
+    before = cv2.getNumThreads()
+    found = {}
+    try:
+        for threads in (1, 2):
+            cv2.setNumThreads(threads)
+            finder = FeatureFinder(TrackerSettings())
+            found[threads] = finder.stereo(left, right, None, expected)
+            assert (finder._pool is not None) == (threads > 1)
+    finally:
+        cv2.setNumThreads(before)
+    assert len(found[1]) > 100
+    assert np.array_equal(found[1].z, found[2].z)
+    assert np.array_equal(found[1].descriptors, found[2].descriptors)
 
 
 def test_keypoints_sit_where_their_blob_is_not_a_quarter_pixel_off():

@@ -303,7 +303,7 @@ class CorrectionConfig(Checked):
     estimator: Literal["linear", "kabsch", "sqpnp"] = "sqpnp"
     fiducials: int = checked(lambda v: 4 <= v <= 500, "an integer 4 to 500", 24)  # picked
     detector: Literal["sift", "orb"] = "sift"
-    stereo: Literal["correlation", "descriptors"] = "descriptors"
+    stereo: Literal["correlation", "descriptors", "flow"] = "descriptors"
     frames: Literal["overlap", "fixed"] = "overlap"
     frame_overlap: float = checked(lambda v: 0 < v < 1, "a number between 0 and 1", 0.5)
     frame_every_deg: float = positive(3.0)  # a frame when the commanded camera turned

@@ -294,6 +294,7 @@ class PoseCorrector:
         p = self.grid.probability()
         gray = to_gray(self._last_left)
         candidates, filters, ids = [], [], []
+        in_voxel: dict[tuple[int, ...], tuple[float, float]] = {}  # certainty, depth contrast
         for i, z in final.observations.items():
             if i not in known:
                 continue
@@ -307,9 +308,12 @@ class PoseCorrector:
             for k, zk in earlier[1:]:
                 ekf.update(zk, poses[k], pose_cov[k])
             x = ekf.x
-            candidates.append(Candidate(z[:2], float(z[2]), certainty(self.grid, p, x),
-                                        visual_contrast(gray, z[:2]),
-                                        depth_contrast(self.grid, p, x)))
+            voxel = tuple(int(k) for k in self.grid.index(x[None])[0])
+            if voxel not in in_voxel:  # the map's terms depend on the voxel alone
+                in_voxel[voxel] = (certainty(self.grid, p, x), depth_contrast(self.grid, p, x))
+            sure, depth = in_voxel[voxel]
+            candidates.append(Candidate(z[:2], float(z[2]), sure, visual_contrast(gray, z[:2]),
+                                        depth))
             filters.append(ekf)
             ids.append(i)
         rate(candidates)
