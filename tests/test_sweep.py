@@ -72,12 +72,7 @@ def test_kill_9_then_resume_gives_the_rows_of_an_uninterrupted_run(tiny, referen
         stored = 0
         while stored < 1 and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.2)
-            if db.exists():
-                with sqlite3.connect(db) as c:
-                    try:
-                        stored = c.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
-                    except sqlite3.OperationalError:
-                        stored = 0
+            stored = _stored(db)
         assert proc.poll() is None, "the sweep ended before it could be killed"
         os.killpg(proc.pid, signal.SIGKILL)  # the sweep and its workers, mid-trial
     finally:
@@ -90,6 +85,54 @@ def test_kill_9_then_resume_gives_the_rows_of_an_uninterrupted_run(tiny, referen
     assert main(["sweep", str(tiny), "--db", str(db)]) == 2  # not without --resume
     done = run_sweep(load_sweep(tiny), db, workers=1, resume=True, progress=False)
     assert done.already == len(before) and done.ran == 4 - len(before)
+    assert rows(db) == reference
+
+
+def _stored(db: Path) -> int:
+    """Trials stored in the sweep database ``db`` so far (0 before it has its tables)."""
+    if not db.exists():
+        return 0
+    with sqlite3.connect(db) as c:
+        try:
+            return int(c.execute("SELECT COUNT(*) FROM trials").fetchone()[0])
+        except sqlite3.OperationalError:
+            return 0
+
+
+def _workers(pid: int) -> list[int]:
+    """The pool's worker processes among the children of process ``pid``."""
+    children = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        children += [int(c) for c in (task / "children").read_text().split()]
+    return [c for c in children
+            if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+
+
+@pytest.mark.slow
+def test_a_worker_that_dies_is_replaced_and_its_trials_run_again(tiny, reference, tmp_path):
+    """SIGKILL on one worker mid-sweep (as glibc's abort on heap corruption ends one):
+    the sweep carries on, on a fresh pool, and stores every trial, as an uninterrupted
+    run does."""
+    db = tmp_path / "died.sqlite"
+    cmd = [sys.executable, "-m", "sim.cli", "sweep", str(tiny), "--db", str(db),
+           "--workers", "2"]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 600
+        while _stored(db) < 1 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+        assert proc.poll() is None, "the sweep ended before a worker could be killed"
+        workers = _workers(proc.pid)
+        assert len(workers) == 2
+        os.kill(workers[0], signal.SIGKILL)
+        _, stderr = proc.communicate(timeout=900)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, stderr
+    assert "a worker process died" in stderr
     assert rows(db) == reference
 
 

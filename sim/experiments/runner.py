@@ -15,9 +15,11 @@ import ctypes
 import multiprocessing
 import os
 import signal
+import sys
 import time
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, nullcontext, suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,26 +101,59 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
         yield pool
 
 
+# A worker process that dies (killed, out of memory, or aborted by glibc's heap check:
+# once in four CI runs of the regression sweep) breaks its whole pool. The trials the pool
+# left unfinished run again on a fresh one, this many times at most; each is seeded by its
+# own indices, so it gives what it would have the first time.
+POOL_RESTARTS = 2
+
+
 def _local(specs: list[TrialSpec], workers: int) -> Iterator[dict[str, Any]]:
     if workers == 1 and pinned_here():
         for spec in specs:
             yield run_trial(spec)
         return
+    left = list(specs)
+    for restart in range(POOL_RESTARTS + 1):
+        finished: set[int] = set()  # ids of the specs whose records were yielded
+        try:
+            for spec, record in _on_pool(left, workers):
+                finished.add(id(spec))
+                yield record
+            return
+        except BrokenProcessPool as exc:
+            left = [spec for spec in left if id(spec) not in finished]
+            if restart == POOL_RESTARTS:
+                raise RuntimeError(
+                    f"a worker process died {restart + 1} times ({exc}); {len(left)} "
+                    "trial(s) not run: run the sweep again with --resume") from exc
+            print(f"taskcam: a worker process died ({exc}); its pool's {len(left)} "
+                  "unfinished trial(s) run on a fresh one", file=sys.stderr, flush=True)
+
+
+def _on_pool(specs: list[TrialSpec], workers: int
+             ) -> Iterator[tuple[TrialSpec, dict[str, Any]]]:
+    """Each spec with its trial's record, run on a pool of ``workers`` processes, in the
+    order they finish."""
     with worker_pool(workers) as pool:
-        pending: set[Future[dict[str, Any]]] = set()
+        pending: dict[Future[dict[str, Any]], TrialSpec] = {}
         queue = iter(specs)
+
+        def submit(spec: TrialSpec) -> None:
+            pending[pool.submit(run_trial, spec)] = spec
+
         try:
             for spec in queue:  # keep a few trials per worker queued, not all of them
-                pending.add(pool.submit(run_trial, spec))
+                submit(spec)
                 if len(pending) >= 2 * workers:
                     break
             while pending:
-                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
-                    yield future.result()
+                    yield pending.pop(future), future.result()
                     spec_next = next(queue, None)
                     if spec_next is not None:
-                        pending.add(pool.submit(run_trial, spec_next))
+                        submit(spec_next)
         finally:
             for future in pending:
                 future.cancel()
