@@ -1,10 +1,10 @@
 """A left keypoint's right pixel by optical flow (issue 23; ``stereo = "flow"``):
 pyramidal Lucas-Kanade (OpenCV) from the left image to the right one, started at a
 guessed disparity and checked by flowing back. It spares SIFT on the right image, which
-costs as much as on the left, for disparities as good on the whole: on the default seed
-0's frames, against the renderer's depth, a median error of 0.11 px either way, 90th
-percentile 0.3-0.7 px (descriptors: 0.3-0.6). Measured on the pose-correction bench it
-corrects a little worse than SIFT matched in both images (docs/benchmarks.md), so it is
+costs as much as on the left, for disparities nearly as good: over the default seed
+0's located frames, against the renderer's depth, a median error of 0.128 px, 90th
+percentile 0.590 (SIFT matched in both images: 0.095 and 0.417; bench/tracker_truth.py).
+On the pose-correction bench it corrects a little worse (docs/benchmarks.md), so it is
 not the default."""
 
 from __future__ import annotations

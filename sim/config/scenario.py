@@ -295,9 +295,9 @@ class CorrectionConfig(Checked):
     ``frames = "overlap"`` a frame is taken when fewer than ``frame_overlap`` of the last
     located frame's fiducials are predicted findable; with ``"fixed"`` whenever the
     camera turned ``frame_every_deg`` or moved ``frame_every_m``. A keypoint's right
-    pixel is found by ``stereo``: "correlation" along its row, or "descriptors" matched
-    to the right image's keypoints. ``frames = "fixed"`` is the first tracker's rule,
-    kept for comparison."""
+    pixel is found by ``stereo``: "correlation" along its row, "descriptors" matched
+    to the right image's keypoints, or "flow" (optical flow from the left image).
+    ``frames = "fixed"`` is the first tracker's rule, kept for comparison."""
 
     enabled: bool = False
     estimator: Literal["linear", "kabsch", "sqpnp"] = "sqpnp"
