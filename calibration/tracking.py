@@ -180,16 +180,23 @@ class FeatureFinder:
         ``expected``. ORB's FAST corners lie on whole pixels of their pyramid level: they
         are refined to sub-pixel on the image (a corner's gradient is orthogonal to its
         offset)."""
-        found, descriptors = self.detector.detectAndCompute(gray, mask)
+        if self.settings.detector == "sift":
+            # every keypoint found, the spread ones described: describing is most of
+            # SIFT's cost (about 4000 keypoints an image, 800 kept), more than building
+            # its pyramid a second time for them (the same descriptors to the bit while a
+            # kept keypoint lies in the doubled first octave, as every frame of the bench
+            # has; 117 against 181 ms an image on one thread, 25 default-scenario frames)
+            every = self.detector.detect(gray, mask)
+            if not every:
+                return np.zeros((0, 2)), None
+            keep = spread(np.array([k.response for k in every]),
+                          np.array([k.pt for k in every]), gray.shape[::-1],
+                          self.settings.features, expected)
+            found, descriptors = self.detector.compute(gray, [every[i] for i in keep])
+        else:
+            found, descriptors = self.detector.detectAndCompute(gray, mask)
         if descriptors is None or not found:
             return np.zeros((0, 2)), None
-        if self.settings.detector == "sift":
-            # every keypoint described, then the kept ones taken: a second pass over the
-            # kept ones alone builds SIFT's pyramid again, which costs more
-            keep = spread(np.array([k.response for k in found]),
-                          np.array([k.pt for k in found]), gray.shape[::-1],
-                          self.settings.features, expected)
-            found, descriptors = tuple(found[i] for i in keep), descriptors[keep]
         pts: np.ndarray = np.array([k.pt for k in found], np.float32).reshape(-1, 1, 2)
         if self.settings.detector == "orb":
             pts = cv2.cornerSubPix(gray, pts, (3, 3), (-1, -1), SUBPIXEL)

@@ -130,6 +130,24 @@ def test_stereo_features_are_the_same_with_the_right_image_on_a_second_thread():
     assert np.array_equal(found[1].descriptors, found[2].descriptors)
 
 
+def test_keypoints_described_after_the_spread_are_those_of_describing_every_one():
+    """Only the spread keypoints are described (SIFT's pyramid built again for them):
+    the same pixels and descriptors as describing all of them in one pass and keeping
+    the spread ones, masked and with fiducials expected."""
+    image = _texture(8)
+    mask = np.full(image.shape, 255, np.uint8)
+    mask[:, :200] = 0
+    expected = np.array([[300.0, 100.0], [600.0, 400.0], [610.0, 420.0]])
+    finder = FeatureFinder(TrackerSettings())
+    pts, descriptors = finder.keypoints(image, mask, expected)
+    every, described = finder.detector.detectAndCompute(image, mask)
+    keep = spread(np.array([k.response for k in every]), np.array([k.pt for k in every]),
+                  SIZE, finder.settings.features, expected)
+    assert len(every) > 2 * len(keep) and len(keep) == 800
+    assert np.array_equal(pts, np.array([every[i].pt for i in keep], np.float32).astype(float))
+    assert descriptors is not None and np.array_equal(descriptors, described[keep])
+
+
 def test_keypoints_sit_where_their_blob_is_not_a_quarter_pixel_off():
     """A keypoint of the image mirrored left-right, mapped back (u -> w - 1 - u), lands
     where the image's own keypoint is only if both are unbiased: OpenCV's default SIFT
