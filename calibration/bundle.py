@@ -156,17 +156,18 @@ def refine(camera: StereoCamera, keyframes: list[Keyframe], points: np.ndarray,
 def _pose_covariance(jac: Any, n_pose: int) -> np.ndarray:
     """The poses' marginal covariance (n_pose x n_pose; rotation vector and translation
     of each g01) from the Jacobian of the whitened residuals: the inverse of the Schur
-    complement of the fiducials' 3x3 blocks in JᵀJ."""
-    H = (jac.T @ jac).tocsr() if hasattr(jac, "tocsr") else np.asarray(jac.T @ jac)
-    Hpp = _dense(H[:n_pose, :n_pose])
-    Hpx = _dense(H[:n_pose, n_pose:])
-    n_points = (H.shape[0] - n_pose) // 3
-    S = Hpp.copy()
-    for i in range(n_points):
-        sl = slice(n_pose + 3 * i, n_pose + 3 * i + 3)
-        block = _dense(H[sl, sl])
-        cross = Hpx[:, 3 * i:3 * i + 3]
-        S -= cross @ np.linalg.pinv(block) @ cross.T
+    complement of the fiducials' 3x3 blocks in JᵀJ (block-diagonal: a residual sees one
+    fiducial), all blocks at once."""
+    J = csr_matrix(jac)
+    Jp, Jx = J[:, :n_pose], J[:, n_pose:]
+    n_points = Jx.shape[1] // 3
+    Hx = (Jx.T @ Jx).tocoo()
+    same = Hx.row // 3 == Hx.col // 3
+    blocks = np.zeros((n_points, 3, 3))
+    np.add.at(blocks, (Hx.row[same] // 3, Hx.row[same] % 3, Hx.col[same] % 3), Hx.data[same])
+    cross = _dense(Jp.T @ Jx).reshape(n_pose, n_points, 3)
+    weighed = np.einsum("pia,iab->pib", cross, np.linalg.pinv(blocks))
+    S = _dense(Jp.T @ Jp) - weighed.reshape(n_pose, -1) @ cross.reshape(n_pose, -1).T
     return np.asarray(np.linalg.pinv(S))
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibration.bundle import BundleProblem, Keyframe, refine, triangulate
+from calibration.bundle import BundleProblem, Keyframe, _pose_covariance, refine, triangulate
 from calibration.ekf import StereoCamera
 from calibration.fiducials import (
     Candidate,
@@ -111,6 +111,23 @@ def test_bundle_pose_covariance_matches_the_scatter_of_repeated_solves():
     scatter = np.std(positions, axis=0)
     ratio = scatter / np.mean(reported, axis=0)
     assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
+
+
+def test_bundle_pose_covariance_is_the_pose_block_of_the_whole_inverse():
+    """The Schur complement of the fiducials' blocks, inverted, is the poses' block of
+    the inverse of the whole JᵀJ (brute force): three frames, two of them free."""
+    rng = np.random.default_rng(7)
+    cam, keyframes, start, g1 = _two_views(rng, 0.3)
+    third = g1.copy()
+    third[:3, 3] += [0.05, 0.0, -0.02]
+    c = start @ third[:3, :3].T + third[:3, 3]
+    keyframes.append(Keyframe(third, {i: cam.measure(p) for i, p in enumerate(c[::2])}))
+    problem = BundleProblem(cam, keyframes, start, 0.3)
+    J = problem.jacobian(problem.x0)
+    whole = np.linalg.inv((J.T @ J).toarray())[:problem.n_pose, :problem.n_pose]
+    assert problem.n_pose == 12
+    assert np.allclose(_pose_covariance(J, problem.n_pose), whole, rtol=1e-6,
+                       atol=1e-9 * np.abs(whole).max())
 
 
 def triangulate_all(cam: StereoCamera, key: Keyframe) -> np.ndarray:
