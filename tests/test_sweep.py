@@ -231,6 +231,17 @@ def test_wilson_interval_matches_hand_calculation():
 
 
 @pytest.mark.slow
+def _median_p90(values: list[float], form: str) -> str:
+    """Sorted ``values``' median / 90th percentile (linear between ranks), or "-"."""
+    if not values:
+        return "-"
+    median = (values[(len(values) - 1) // 2] + values[len(values) // 2]) / 2
+    at = 0.9 * (len(values) - 1)
+    above = values[min(int(at) + 1, len(values) - 1)]
+    p90 = values[int(at)] + (at - int(at)) * (above - values[int(at)])
+    return f"{form.format(median)} / {form.format(p90)}"
+
+
 def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
     db = tmp_path / "report.sqlite"
     shutil.copy(tiny.parent / "reference.sqlite", db)
@@ -285,15 +296,11 @@ def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
         blind = sum(not any(r["placed"] and r["seen"] for r in m["robots"]) for m in runs)
         moved = sum(m["replacements"] or 0 for m in runs) / n
         finals = sorted(1e3 * m["final_displacement_m"] for m in runs if m["attempted"])
-        final = "-"
-        if finals:
-            median = (finals[(len(finals) - 1) // 2] + finals[len(finals) // 2]) / 2
-            at = 0.9 * (len(finals) - 1)  # the 90th percentile, between ranks
-            above = finals[min(int(at) + 1, len(finals) - 1)]
-            p90 = finals[int(at)] + (at - int(at)) * (above - finals[int(at)])
-            final = f"{median:.2f} / {p90:.2f}"
+        steps = sorted(m["steps"] for m in runs if m["attempted"])
+        final = _median_p90(finals, "{:.2f}")
         assert (f"| {method} | {100 * density:g} % | {n} | {placed:.2f} | {saw:.2f} | "
-                f"{round(100 * blind / n)} % | {moved:.2f} | {final} |") in text
+                f"{round(100 * blind / n)} % | {moved:.2f} | {final} | "
+                f"{_median_p90(steps, '{:g}')} |") in text
     assert text == (tmp_path / "out" / "report.md").read_text()
     assert "(100)" in text  # the paper's optimal at 5 %, 20 % tolerance, with secondary
     csv_lines = (tmp_path / "out" / "report.csv").read_text().splitlines()

@@ -176,12 +176,13 @@ class Views:
     replacements: float  # cameras placed again during the task, mean a trial
     final_mm: tuple[float, float] | None  # attempted tasks' final displacement (mm):
     # median and 90th percentile (numpy's linear interpolation)
+    steps: tuple[float, float] | None  # attempted tasks' steps: median, 90th percentile
 
 
 def camera_views(db: str | Path) -> list[Views]:
     """Per method and requested density, from the trials' records: how many cameras were
     placed and saw their target, how often none did, the re-placements, and where the
-    attempted tasks ended."""
+    attempted tasks ended and after how many steps."""
     import numpy as np
 
     rows: dict[tuple[str, float], list[dict[str, Any]]] = defaultdict(list)
@@ -192,15 +193,18 @@ def camera_views(db: str | Path) -> list[Views]:
     out = []
     for (name, density), runs in sorted(rows.items()):
         robots = [m["robots"] for m in runs]
-        finals = [1e3 * m["final_displacement_m"] for m in runs
-                  if m.get("attempted") and m.get("final_displacement_m") is not None]
+        ended = [m for m in runs
+                 if m.get("attempted") and m.get("final_displacement_m") is not None]
+        finals = [1e3 * m["final_displacement_m"] for m in ended]
+        steps = [m["steps"] for m in ended]
         out.append(Views(
             name, density, len(runs),
             sum(sum(bool(r["placed"]) for r in rs) for rs in robots) / len(runs),
             sum(sum(bool(r["placed"] and r["seen"]) for r in rs) for rs in robots) / len(runs),
             sum(not any(r["placed"] and r["seen"] for r in rs) for rs in robots),
             sum(int(m.get("replacements") or 0) for m in runs) / len(runs),
-            (float(np.median(finals)), float(np.percentile(finals, 90))) if finals else None))
+            (float(np.median(finals)), float(np.percentile(finals, 90))) if finals else None,
+            (float(np.median(steps)), float(np.percentile(steps, 90))) if steps else None))
     return out
 
 
@@ -211,14 +215,15 @@ def views_markdown(views: list[Views]) -> str:
     lines = ["What each method's cameras did (the trials' records): cameras placed and "
              "cameras that saw their target, mean a trial (of the robots); trials where "
              "none saw one; re-placements during the task, mean a trial; the attempted "
-             "tasks' final displacement, median / 90th percentile", "",
+             "tasks' final displacement and steps, median / 90th percentile", "",
              "| method | density | trials | placed | saw target | none saw | "
-             "re-placements | final mm |", "|---|---|---:|---:|---:|---:|---:|---|"]
+             "re-placements | final mm | steps |", "|---|---|---:|---:|---:|---:|---:|---|---|"]
     for v in views:
         final = "-" if v.final_mm is None else f"{v.final_mm[0]:.2f} / {v.final_mm[1]:.2f}"
+        steps = "-" if v.steps is None else f"{v.steps[0]:g} / {v.steps[1]:g}"
         lines.append(f"| {v.method} | {100 * v.density:g} % | {v.trials} | {v.placed:.2f} | "
                      f"{v.saw:.2f} | {percent_of(v.blind, v.trials)} | "
-                     f"{v.replacements:.2f} | {final} |")
+                     f"{v.replacements:.2f} | {final} | {steps} |")
     return "\n".join(lines) + "\n"
 
 
