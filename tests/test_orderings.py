@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from sim.experiments.orderings import claims, markdown, mcnemar, orderings_in
+from sim.experiments.orderings import Ordering, claims, markdown, mcnemar, orderings_in
 from sim.experiments.report import report
 from sim.experiments.results import Results
 
@@ -95,6 +95,22 @@ def test_orderings_on_a_database_against_hand_counts(small_db, tmp_path):
     out = report(small_db, tmp_path / "out")
     assert out["orderings"] == markdown(orderings_in(small_db))
     assert (tmp_path / "out" / "small-orderings.md").read_text() == out["orderings"]
-    assert "- placement: 1 of 2" in out["orderings"]
+    assert "- placement: 1 of 2 (not: 1 too close)" in out["orderings"]
+    assert "- all: 1 of 3 (not: 2 too close)" in out["orderings"]
+    assert five.verdict == "reproduced" and twenty.verdict == step.verdict == "too close"
     lines = (tmp_path / "out" / "small-orderings.csv").read_text().splitlines()
     assert len(lines) == 1 + 3
+
+
+@pytest.mark.parametrize("counts, verdict", [
+    (((19, 20), (2, 20)), "reproduced"),  # 95 % [76-99] over 10 % [3-30]
+    (((2, 20), (19, 20)), "reversed"),
+    (((20, 20), (18, 20)), "both at the ceiling"),  # 100 and 90 %: no room for 10 points
+    (((2, 20), (0, 20)), "both at the floor"),  # 10 and 0 %
+    (((12, 20), (8, 20)), "too close"),  # 60 % [39-78] against 40 % [22-61]
+    (((19, 20), (17, 20)), "too close"),  # 95 and 85 %: the lower one below 90 %
+])
+def test_an_ordering_that_does_not_reproduce_says_how(counts, verdict):
+    o = Ordering("placement", ("rating", True, 0.05, 0.2), ("biased_random", True, 0.05, 0.2),
+                 55.0, counts, "McNemar", 1.0)
+    assert o.verdict == verdict

@@ -7,7 +7,10 @@ each density step (5 to 20, 20 to 35, 5 to 35 %) for the same method, tolerance 
 secondary setting. An ordering **reproduces** when taskcam's two Wilson 95 % intervals
 are apart in the paper's direction. Each also gets a two-sided significance test: the
 exact McNemar test where both cells ran on the same scenes (their discordant pairs), and
-Fisher's exact test where they did not (density steps compare different scenes).
+Fisher's exact test where they did not (density steps compare different scenes). One
+that does not reproduce says how: reversed (the intervals apart the other way), both at
+the ceiling or the floor (both rates within ROOM of 100 % or 0 %: no room for the
+paper's gap of more than GAP_POINTS), or too close (the intervals overlap).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from sim.experiments.report import DIFFICULTY, NAMES, PAPER, percent, wilson, wr
 from sim.experiments.results import Results, ResultsError
 
 GAP_POINTS = 10.0  # the paper's cells must differ by more than this to make a claim
+ROOM = GAP_POINTS / 100  # both rates this near 100 % (or 0 %) leave no room for such a gap
 DENSITIES = (0.05, 0.2, 0.35)
 TOLERANCES = (0.2, 0.1, 0.01)
 PLACEMENTS = ("rating", "biased_random")
@@ -79,6 +83,23 @@ class Ordering:
         """Wilson 95 % intervals apart, the paper's higher cell above."""
         (s1, n1), (s2, n2) = self.counts
         return wilson(s1, n1)[0] > wilson(s2, n2)[1]
+
+    @property
+    def verdict(self) -> str:
+        """"reproduced", or why not: "reversed" (the intervals apart the other way),
+        "both at the ceiling" / "both at the floor" (both rates at least 1 - ROOM / at
+        most ROOM), or "too close" (the intervals overlap)."""
+        (s1, n1), (s2, n2) = self.counts
+        if self.reproduces:
+            return "reproduced"
+        if wilson(s2, n2)[0] > wilson(s1, n1)[1]:
+            return "reversed"
+        rates = (s1 / n1, s2 / n2)
+        if min(rates) >= 1 - ROOM:
+            return "both at the ceiling"
+        if max(rates) <= ROOM:
+            return "both at the floor"
+        return "too close"
 
 
 def mcnemar(only_first: int, only_second: int) -> float:
@@ -146,22 +167,33 @@ def markdown(orderings: list[Ordering]) -> str:
              "same scenes, Fisher across densities).", ""]
     for family in ("placement", "secondary targets", "density"):
         mine = [o for o in orderings if o.family == family]
-        lines.append(f"- {family}: {sum(o.reproduces for o in mine)} of {len(mine)}")
-    lines.append(f"- all: {sum(o.reproduces for o in orderings)} of {len(orderings)}")
+        lines.append(f"- {family}: {sum(o.reproduces for o in mine)} of {len(mine)}"
+                     + _why_not(mine))
+    lines.append(f"- all: {sum(o.reproduces for o in orderings)} of {len(orderings)}"
+                 + _why_not(orderings))
     lines += ["", "| family | higher (paper %) | lower (paper %) | ours: higher | ours: lower "
               "| reproduced | test | p |", "|---|---|---|---:|---:|:-:|---|---:|"]
     for o in orderings:
         ours = [percent(s, n) for s, n in o.counts]
         lines.append(f"| {o.family} | {_cell(o.higher)} ({PAPER[o.higher]}) | "
                      f"{_cell(o.lower)} ({PAPER[o.lower]}) | {ours[0]} | {ours[1]} | "
-                     f"{'yes' if o.reproduces else 'no'} | {o.test} | {o.p_value:.2g} |")
+                     f"{'yes' if o.reproduces else 'no: ' + o.verdict} | {o.test} | "
+                     f"{o.p_value:.2g} |")
     return "\n".join(lines) + "\n"
+
+
+def _why_not(orderings: list[Ordering]) -> str:
+    """How many of those that do not reproduce fail each way, as ``(not: 3 too close,
+    ...)``; empty if all reproduce."""
+    verdicts = [o.verdict for o in orderings if not o.reproduces]
+    kinds = sorted(set(verdicts), key=lambda v: (-verdicts.count(v), v))
+    return f" (not: {', '.join(f'{verdicts.count(v)} {v}' for v in kinds)})" if kinds else ""
 
 
 def write_csv(orderings: list[Ordering], path: Path) -> None:
     write_rows(path, ["family", "higher", "lower", "paper_gap_points", "higher_successes",
-                      "higher_trials", "lower_successes", "lower_trials", "reproduces", "test",
-                      "p_value"],
+                      "higher_trials", "lower_successes", "lower_trials", "reproduces",
+                      "verdict", "test", "p_value"],
                ([o.family, _cell(o.higher), _cell(o.lower), o.paper_gap, *o.counts[0],
-                 *o.counts[1], int(o.reproduces), o.test, f"{o.p_value:.6g}"]
+                 *o.counts[1], int(o.reproduces), o.verdict, o.test, f"{o.p_value:.6g}"]
                 for o in orderings))
