@@ -237,6 +237,32 @@ class PackedHulls:
         return _occluded(origin, offsets, self.A, self.b, self.reach, self.start,
                          self.centre, self.radius, cone)
 
+    def hidden_directions(self, origin: np.ndarray, distance: float, directions: int,
+                          cone: bool) -> np.ndarray:
+        """Indices (increasing) of the ``sphere(directions)`` directions from which a
+        camera ``distance`` (m) from ``origin`` is occluded: :meth:`occluded` on the
+        directions whose sight line can meet a hull's bounding sphere (the others clear
+        every hull); the same as on all of them."""
+        dirs, _ = sphere(directions)
+        near = self.facing(origin, directions)
+        return near[self.occluded(origin, distance * dirs[near], cone)]
+
+    def facing(self, origin: np.ndarray, directions: int) -> np.ndarray:
+        """Indices (increasing) of the ``sphere(directions)`` directions within the cone
+        that some hull's bounding sphere subtends from ``origin`` (every direction if
+        ``origin`` is inside one), a hair wider for rounding."""
+        out: list[np.ndarray] = []
+        tree = _sphere_tree(directions)
+        for centre, radius in zip(self.centre, self.radius, strict=True):
+            away = centre - origin
+            reach = float(np.linalg.norm(away))
+            if reach <= radius * (1 + 1e-9):
+                return np.arange(directions)
+            half = np.arcsin(radius / reach) + 1e-6  # rad
+            chord = 2 * np.sin(min(half, np.pi) / 2)
+            out.append(np.asarray(tree.query_ball_point(away / reach, chord), dtype=np.int64))
+        return np.unique(np.concatenate(out)) if out else np.zeros(0, np.int64)
+
 
 def hull_depths(target: np.ndarray, hulls: list[Hull], dirs: np.ndarray, cone: bool = True,
                 limit: float = 10.0) -> np.ndarray:
@@ -314,6 +340,12 @@ def clearance_map(target: np.ndarray, hulls: list[Hull], near: float, far: float
     clearance = _clearance(dirs, np.ascontiguousarray(dirs[occluded[order]]), first[order],
                            levels)
     return ClearanceMap(ladder, clearance, depth, directions, target, packed, cone)
+
+
+@lru_cache(maxsize=4)
+def _sphere_tree(directions: int) -> cKDTree:
+    """A search tree over the ``sphere(directions)`` directions."""
+    return cKDTree(sphere(directions)[0])
 
 
 @nb.njit(cache=True)

@@ -22,6 +22,7 @@ from placement import (
     search,
     target_outline,
 )
+from placement.tfv import PackedHulls, sphere
 
 UP = np.array([0.0, 0.0, 1.0])
 TARGET = TargetModel("t", np.zeros(3), UP, 0.03)
@@ -205,3 +206,23 @@ def test_random_search_covering_every_candidate_equals_exhaustive():
     bounded = search(g, [TARGET], camera, settings=SearchSettings("bounded", max_distance=0.6))
     assert 0 < coarse.evaluated < full.evaluated and 0 < bounded.evaluated < full.evaluated
     assert np.all(np.linalg.norm(bounded.ratings.positions, axis=1) <= 0.6)
+
+
+@pytest.mark.parametrize("cone", [True, False])
+def test_hidden_directions_are_those_every_direction_finds(cone):
+    """Testing only the directions facing a hull's bounding sphere finds exactly the
+    directions testing all 16384 does: boxes near and far, several at once, and a target
+    inside one's bounding sphere (every direction is then tested)."""
+    rng = np.random.default_rng(11)
+    dirs, _ = sphere(16384)
+    cases = [[BOX], [BOX + [0.9, 0.4, 0.2]], [BOX, BOX * [-1, 1, 1] + [0, 0.5, 0.1]],
+             [BOX - [0.4, 0.0, 0.3]]]  # the last around the target
+    for boxes in cases:
+        packed = PackedHulls.of(expanded_hulls(boxes, TARGET))
+        for distance in rng.uniform(0.2, 2.0, 3):
+            every = np.flatnonzero(packed.occluded(TARGET.position, distance * dirs, cone))
+            found = packed.hidden_directions(TARGET.position, distance, 16384, cone)
+            assert np.array_equal(found, every)
+        facing = packed.facing(TARGET.position, 16384)
+        assert len(facing) < 16384 or boxes is cases[-1]
+    assert len(every) > 100

@@ -161,10 +161,8 @@ class _Occluder:
 
     def at(self, level: float, site: TargetModel, settings: SearchSettings) -> np.ndarray:
         if level not in self.hides:
-            dirs, _ = sphere(settings.directions)
-            hidden = PackedHulls.of([self.hull]).occluded(site.position, level * dirs,
-                                                          settings.cone)
-            self.hides[level] = np.flatnonzero(hidden)
+            self.hides[level] = PackedHulls.of([self.hull]).hidden_directions(
+                site.position, level, settings.directions, settings.cone)
         return self.hides[level]
 
 
