@@ -103,6 +103,22 @@ def ranked_field(world: World, problem: RatingProblem, robot: Robot,
     return rated
 
 
+def _findable(ranked: RatingField, candidates: np.ndarray, targets: tuple[Target, ...],
+              problem: RatingProblem, baseline_m: float) -> np.ndarray:
+    """Per candidate of ``ranked`` (bool; only the indices ``candidates`` are computed):
+    can the hole detector find the candidate's target from there, in both stereo images
+    (:func:`detectable`, the target as large as what the detector finds of it)?"""
+    out = np.zeros(len(ranked.ratings.positions), dtype=bool)
+    for t in np.unique(ranked.target[candidates]):
+        mine = candidates[ranked.target[candidates] == t]
+        target = targets[int(t)]
+        seen_as = dataclasses.replace(target_model(target),
+                                      radius=max(target.radius, target.detect_radius))
+        out[mine] = detectable(ranked.ratings.positions[mine], seen_as, problem.camera,
+                               baseline_m=baseline_m)
+    return out
+
+
 def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.ndarray],
           targets: tuple[Target, ...], method: str, corrector: PoseCorrector | None,
           prior_sd: tuple[float, float], *, index: int = 0, step: int | None = None,
@@ -145,6 +161,7 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     with world.timer("ik"):
         room = planner.standing_room(robot, ranked.ratings.positions[order])
     roomless = int((~room).sum())  # nowhere to stand within the arm's reach: skipped
+    findable = _findable(ranked, order[room], targets, problem, s.camera.baseline_m)
     for i in order[room]:
         if tried >= q.ik_candidates or standless >= MAX_STANDLESS:
             break
@@ -153,9 +170,7 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in rejected):
             continue  # next to a candidate that failed: try somewhere else
         model = target_model(target)  # the point the camera aims at, as the rating rates it
-        seen_as = dataclasses.replace(model, radius=max(target.radius, target.detect_radius))
-        if not detectable(position[None], seen_as, problem.camera,
-                          baseline_m=s.camera.baseline_m)[0]:
+        if not findable[i]:
             undetectable += 1  # too far or too oblique for the hole detector
             continue  # (in either stereo image: sightings need both)
         if corners is not None and not sees_site(position, model.position, corners,
