@@ -22,7 +22,7 @@ from sim.config.scenario import SCENARIO_DIR
 from sim.config.sweep import load_sweep
 from sim.experiments.report import cells, markdown, report, wilson
 from sim.experiments.results import Results
-from sim.experiments.runner import run_sweep, trial_specs
+from sim.experiments.runner import _on_pool, run_sweep, trial_specs
 from sim.experiments.trial import run_trial
 
 TINY = (SCENARIO_DIR / "smoke.toml").read_text()
@@ -169,6 +169,20 @@ def test_a_trial_pairs_its_methods_whatever_their_order(tiny):
 
     assert strip(alone["methods"][0]) == strip(both["methods"][1])
     assert alone["achieved_density"] == both["achieved_density"]
+
+
+def test_a_trial_that_fails_is_named_even_from_a_worker(tiny):
+    """A scene the generator cannot make (0.95 occlusion) fails its trial; the error
+    names the trial, its density and seed, in this process and from a worker's."""
+    spec = dataclasses.replace(trial_specs(load_sweep(tiny))[1], density=0.95)
+    named = f"in trial {spec.trial} at density 0.95 (density index {spec.density_index}, " \
+            f"seed {spec.seed})"
+    with pytest.raises(ValueError, match="not in") as here:
+        run_trial(spec)
+    assert named in here.value.__notes__[0]
+    with pytest.raises(ValueError, match="not in") as there:
+        list(_on_pool([spec], 2))
+    assert named in there.value.__notes__[0]
 
 
 @pytest.mark.parametrize(("edit", "key"), [

@@ -101,7 +101,18 @@ def _correction(c: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_trial(spec: TrialSpec) -> dict[str, Any]:
-    """Generate, map once, run every method; the trial's record."""
+    """Generate, map once, run every method; the trial's record. An error names the
+    trial (density, index, seed), so that it can be run again alone."""
+    try:
+        return _run_trial(spec)
+    except Exception as exc:
+        exc.add_note(f"in trial {spec.trial} at density {spec.density:g} (density index "
+                     f"{spec.density_index}, seed {spec.seed}); the sweep's finished "
+                     "trials are stored: --resume continues after a fix")
+        raise
+
+
+def _run_trial(spec: TrialSpec) -> dict[str, Any]:
     start = time.perf_counter()
     scenario, clutter = trial_scenario(spec)
     timer = Timer()
