@@ -26,7 +26,7 @@ from sim.stages.relative import (
     slot_outer_half_width,
     stand_in,
 )
-from sim.stages.site_view import SiteWatch, box_corners
+from sim.stages.site_view import SITE, SiteWatch, box_corners
 from sim.stages.slot_target import nominal_panel, nominal_slot, stereo_rig
 from sim.stages.task import InsertionTask, Replacement, panel_model
 from sim.stages.task_result import Camera, TaskResult
@@ -82,7 +82,7 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
     watch = SiteWatch(world.grid, s, slot.position, task.model, slot.pose[:3, 1],
                       slot_half_width(task.slot_boxes))
     # found, as the slot target is (sim/stages/slot_target.py), by the walls beside it
-    site = Target("insertion site", "site", "", watch.site.position, watch.site.normal,
+    site = Target(SITE, "site", "", watch.site.position, watch.site.normal,
                   watch.site.radius, 0.0, watch.site.half_length, watch.site.axis,
                   detect_radius=slot_outer_half_width(task.slot_boxes))
 

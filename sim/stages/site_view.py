@@ -123,9 +123,12 @@ def site_target(grid: OccupancyGrid, scenario: Scenario, slot: np.ndarray,
            and column[:, :, top + 1].any()):
         top += 1
     z = slot[2] if top == k else over(top)
-    return TargetModel("insertion site", np.array([slot[0], slot[1], max(z, slot[2])]), UP,
+    return TargetModel(SITE, np.array([slot[0], slot[1], max(z, slot[2])]), UP,
                        half_width, half_length=panel.size / 2,
                        axis=np.asarray(along, float))
+
+
+SITE = "insertion site"  # the insertion site's name as a target
 
 
 def box_corners(model: BoxModel, pose: np.ndarray) -> np.ndarray:
