@@ -160,11 +160,12 @@ class _Occluder:
 
     def __init__(self, hull: Hull) -> None:
         self.hull = hull
+        self._packed = PackedHulls.of([hull])  # packed once, for every level
         self.hides: dict[float, np.ndarray] = {}
 
     def at(self, level: float, site: TargetModel, settings: SearchSettings) -> np.ndarray:
         if level not in self.hides:
-            self.hides[level] = PackedHulls.of([self.hull]).hidden_directions(
+            self.hides[level] = self._packed.hidden_directions(
                 site.position, level, settings.directions, settings.cone)
         return self.hides[level]
 
