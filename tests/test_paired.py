@@ -4,6 +4,8 @@ the comparison of two results databases against hand counts, and `taskcam compar
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import run_taskcam
@@ -145,3 +147,16 @@ def test_the_whole_loop_sweep_extends_the_main_table_on_its_first_scenes():
     assert loop.scenario.motion.joint_offset_deg > 0 == main.scenario.motion.joint_offset_deg
     assert loop.scenario.camera == main.scenario.camera  # everything else as the main table
     assert loop.scenario.search == main.scenario.search
+
+
+def test_the_step_budget_ablation_differs_from_the_main_table_only_in_its_task_loop():
+    main, budget = load_sweep("scenarios/table1.toml"), load_sweep("scenarios/table1_budget.toml")
+    assert budget.config.trials == 50 and budget.config.methods == main.config.methods
+    assert all(budget.trial_seed(i, k) == main.trial_seed(i, k)
+               for i in range(len(main.config.densities)) for k in range(50))
+    assert (budget.scenario.task.max_steps, budget.scenario.task.replace) == (2, False)
+    loop_off = dataclasses.replace(budget.scenario.task, max_steps=main.scenario.task.max_steps,
+                                   replace=main.scenario.task.replace)
+    assert loop_off == main.scenario.task
+    assert dataclasses.replace(budget.scenario, task=main.scenario.task, source="") \
+        == dataclasses.replace(main.scenario, source="")
