@@ -216,6 +216,13 @@ def within_probability(mean: np.ndarray, sd_m: float, tolerance_m: float) -> flo
     return float(ncx2.cdf((tolerance_m / sd_m) ** 2, 3, float(mean @ mean) / sd_m ** 2))
 
 
+# how :func:`stop_reason` begins its two reasons: the task stopped believing the panel
+# within the tightest tolerance (rather than at the step bound, or having lost it)
+CONFIDENT = "confident within the tightest tolerance"
+LIKELIER = "within stop_share of the tightest tolerance"
+STOPPED_WITHIN = (CONFIDENT, LIKELIER)
+
+
 def stop_reason(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: float,
                 share: float, sigmas: float, agreed: bool = True, gain: float = 1.0,
                 execution_sd_m: float = 0.0) -> str | None:
@@ -234,13 +241,13 @@ def stop_reason(displacement: np.ndarray, covariance: np.ndarray, tolerance_m: f
         return None
     worst = largest_sd(covariance)
     if length + sigmas * worst <= tolerance_m:
-        return "confident within the tightest tolerance"
+        return CONFIDENT
     if not agreed:
         return None
     now = within_probability(displacement, worst, tolerance_m)
     after = within_probability((1 - gain) * displacement, math.hypot(worst, execution_sd_m),
                                tolerance_m)
     if now >= after:
-        return (f"within stop_share of the tightest tolerance, where stopping ({now:.2f}) is "
+        return (f"{LIKELIER}, where stopping ({now:.2f}) is "
                 f"likelier than one more step ({after:.2f}) to end within it")
     return None
