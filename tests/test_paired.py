@@ -149,14 +149,13 @@ def test_the_whole_loop_sweep_extends_the_main_table_on_its_first_scenes():
     assert loop.scenario.search == main.scenario.search
 
 
-def test_the_step_budget_ablation_differs_from_the_main_table_only_in_its_task_loop():
-    main, budget = load_sweep("scenarios/table1.toml"), load_sweep("scenarios/table1_budget.toml")
-    assert budget.config.trials == 50 and budget.config.methods == main.config.methods
-    assert all(budget.trial_seed(i, k) == main.trial_seed(i, k)
+def test_the_fixed_views_ablation_differs_from_the_main_table_only_in_re_placing_cameras():
+    main = load_sweep("scenarios/table1.toml")
+    fixed = load_sweep("scenarios/table1_fixed_views.toml")
+    assert fixed.config.trials == 50
+    assert fixed.config.methods == tuple(m for m in main.config.methods if m.name != "nbv")
+    assert all(fixed.trial_seed(i, k) == main.trial_seed(i, k)
                for i in range(len(main.config.densities)) for k in range(50))
-    assert (budget.scenario.task.max_steps, budget.scenario.task.replace) == (2, False)
-    loop_off = dataclasses.replace(budget.scenario.task, max_steps=main.scenario.task.max_steps,
-                                   replace=main.scenario.task.replace)
-    assert loop_off == main.scenario.task
-    assert dataclasses.replace(budget.scenario, task=main.scenario.task, source="") \
+    assert main.scenario.task.replace and not fixed.scenario.task.replace
+    assert dataclasses.replace(fixed.scenario, task=main.scenario.task, source="") \
         == dataclasses.replace(main.scenario, source="")
