@@ -12,7 +12,7 @@ from conftest import run_taskcam
 
 from sim.config.sweep import load_sweep
 from sim.experiments import corrections
-from sim.experiments.paired import compare, markdown, paired_interval
+from sim.experiments.paired import compare, markdown, paired_interval, pooled
 from sim.experiments.results import Results, ResultsError
 
 
@@ -90,6 +90,11 @@ def test_compare_counts_the_pairs_by_hand(tmp_path):
     assert five.excluded_margin == pytest.approx(max(map(abs, five.interval)))
     text = markdown(cells, "on", "off")
     assert "| 0.2 | 0.05 | optimal | 10 | 6 | 2 | 1 | +10 |" in text
+    # pooled: 14 pairs; both 6 + 1, on only 2 + 2, off only 1 + 0, neither 1 + 1
+    (pool,) = pooled(cells)
+    assert (pool.n, pool.both, pool.first_only, pool.second_only, pool.neither) == (14, 7, 4, 1, 2)
+    assert pool.p == pytest.approx(0.375)  # exact McNemar: 2 * P(X <= 1), X ~ Bin(5, 1/2)
+    assert "| 0.2 | 14 | 7 | 4 | 1 | +21.4 | 0.375 |" in text
 
 
 def test_the_corrections_where_the_sweeps_end_differently_by_hand(tmp_path):

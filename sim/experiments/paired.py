@@ -125,8 +125,22 @@ def compare(first: str | Path, second: str | Path) -> list[PairedCell]:
     return out
 
 
+def pooled(cells: list[PairedCell]) -> list[PairedCell]:
+    """Per tolerance, the cells' pairs summed over methods and densities (``method``
+    "all", ``density`` NaN): a change too small for any one cell to show. The tasks of
+    one scene share it, so the pooled pairs are not independent and the pooled test is
+    a summary, not an exact test."""
+    out = []
+    for tolerance in sorted({c.tolerance for c in cells}, reverse=True):
+        mine = [c for c in cells if c.tolerance == tolerance]
+        out.append(PairedCell("all", math.nan, tolerance, sum(c.both for c in mine),
+                              sum(c.first_only for c in mine),
+                              sum(c.second_only for c in mine), sum(c.neither for c in mine)))
+    return out
+
+
 def markdown(cells: list[PairedCell], first: str, second: str) -> str:
-    """The comparison as a Markdown table, a row per cell."""
+    """The comparison as a Markdown table, a row per cell, then pooled per tolerance."""
     lines = [f"Success with {first} less success with {second}, on the same scenes "
              "(points; 95 % interval, Newcombe's method 10 for paired proportions; exact "
              "McNemar test; the margin is the smallest change the interval excludes).", "",
@@ -139,4 +153,11 @@ def markdown(cells: list[PairedCell], first: str, second: str) -> str:
                      f"{c.first_only} | {c.second_only} | {100 * c.difference:+.0f} | "
                      f"{100 * low:+.0f} to {100 * high:+.0f} | {c.p:.3g} | "
                      f"{100 * c.excluded_margin:.0f} |")
+    lines += ["", "Pooled over methods and densities (:func:`pooled`: the tasks of a scene "
+              "share it, so the test is a summary, not exact).", "",
+              "| tolerance | paired tasks | both | only first | only second | difference "
+              "| McNemar p |", "|---|---|---|---|---|---|---|"]
+    for c in pooled(cells):
+        lines.append(f"| {c.tolerance:g} | {c.n} | {c.both} | {c.first_only} | "
+                     f"{c.second_only} | {100 * c.difference:+.1f} | {c.p:.3g} |")
     return "\n".join(lines) + "\n"
