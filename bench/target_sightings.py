@@ -57,11 +57,10 @@ def observed(rows: list[dict[str, Any]]) -> Any:
                   prior_sd: Any) -> Any:
         out = stand_ins(world, at, sightings, targets, frame, slot, prior_sd)
         truth = true_positions(world, targets)
-        for s in sightings:
-            kind = "slot" if any(is_slot(t) and t.name == s.target for t in targets) else "hole"
-            rows.append({"kind": f"{kind} sighting",
-                         "error_mm": 1e3 * float(np.linalg.norm(s.position - truth[s.target]))})
         slot_name = next(t.name for t in targets if is_slot(t))
+        for s in sightings:
+            rows.append({"kind": "slot sighting" if s.target == slot_name else "hole sighting",
+                         "error_mm": 1e3 * float(np.linalg.norm(s.position - truth[s.target]))})
         for name, found in out.items():
             pose = opencv_pose(at[name].camera(prior_sd).believed)
             for f in found:

@@ -97,6 +97,7 @@ MAX_LIFT_M = 0.1
 OVER_SURFACE_M = 0.001
 
 UP = np.array([0.0, 0.0, 1.0])
+SITE = "insertion site"  # the insertion site's name as a target
 NEIGHBOURS = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
 
 
@@ -126,9 +127,6 @@ def site_target(grid: OccupancyGrid, scenario: Scenario, slot: np.ndarray,
     return TargetModel(SITE, np.array([slot[0], slot[1], max(z, slot[2])]), UP,
                        half_width, half_length=panel.size / 2,
                        axis=np.asarray(along, float))
-
-
-SITE = "insertion site"  # the insertion site's name as a target
 
 
 def box_corners(model: BoxModel, pose: np.ndarray) -> np.ndarray:
