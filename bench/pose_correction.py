@@ -47,6 +47,10 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "orb": {"detector": "orb"},
     "correlation": {"stereo": "correlation"},
     "flow": {"stereo": "flow"},
+    # fewer frames: none added near the goal for the estimate's views; or the track's
+    # frames when under 0.3 of the last frame's fiducials are expected found again
+    "track": {"frames": "track"},
+    "overlap30": {"frame_overlap": 0.3},
 }
 # Wall seconds a move's correction may spend on each part (issue 23: 1.5 s in all, one
 # worker): about five stereo frames of two renders, a segmentation and SIFT on the pair,

@@ -4,6 +4,7 @@ err, and the episode's reported errors against the simulator's truth."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 
@@ -76,35 +77,62 @@ def _goal(scene, robot, qpos, offset):
         robot.qpos_adr]
 
 
-def test_a_lost_track_takes_a_frame_only_where_it_expects_to_be_located_again(scene):
-    """After a frame that was not located: at the fixed step, a frame where the prediction
-    expects at least ``min_inliers`` of the last located frame's fiducials (the camera
-    still facing them), none where it turned away from them (it knows nothing there)."""
+@contextlib.contextmanager
+def _resting_corrector(scene, correction, goal_yaw_deg=0.0):
+    """A corrector begun at the first robot's resting pose, the move's goal its base
+    turned by ``goal_yaw_deg``; yields it and ``turned(yaw_deg)``: the camera pose (as
+    the joints put it) with the base turned so far, the arm as it was."""
     s = load_scenario()
     robot = scene.robots[0]
     belief, world = scene.make_data(), scene.make_data()
     joints = belief.qpos[robot.qpos_adr].copy()
     pinhole = camera_pinhole(scene.model, robot.camera)
+
+    def turned_joints(yaw_deg: float) -> np.ndarray:
+        q = joints.copy()
+        q[2] += math.radians(yaw_deg)
+        return q
+
     with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
         corrector = PoseCorrector(scene, belief, world, renderer, pinhole,
-                                  s.camera.baseline_m, new_grid(s), s.correction)
-        corrector.begin(robot, np.array([joints, joints]))
+                                  s.camera.baseline_m, new_grid(s), correction)
+        corrector.begin(robot, np.array([joints, turned_joints(goal_yaw_deg)]))
+        yield corrector, lambda yaw_deg: corrector.nominal_pose(robot, turned_joints(yaw_deg))
+
+
+def test_a_lost_track_takes_a_frame_only_where_it_expects_to_be_located_again(scene):
+    """After a frame that was not located: at the fixed step, a frame where the prediction
+    expects at least ``min_inliers`` of the last located frame's fiducials (the camera
+    still facing them), none where it turned away from them (it knows nothing there)."""
+    with _resting_corrector(scene, load_scenario().correction) as (corrector, turned):
         tracker = corrector._tracker
         assert tracker is not None and len(tracker.frames[0].observations) >= 100
         tracker.frames.append(Frame(tracker.frames[0].g01, {}, located=False))
-        here = corrector.nominal_pose(robot, joints)
-
-        def moved(yaw_deg: float) -> np.ndarray:  # the base turned, the arm as it was
-            q = joints.copy()
-            q[2] += math.radians(yaw_deg)
-            return corrector.nominal_pose(robot, q)
-
-        assert not corrector._due(here)  # not the fixed step yet
-        assert corrector._due(moved(4.0))  # a step on, still facing the fiducials
-        assert not corrector._due(moved(120.0))  # turned away: none of them in view
+        assert not corrector._due(turned(0.0))  # not the fixed step yet
+        assert corrector._due(turned(4.0))  # a step on, still facing the fiducials
+        assert not corrector._due(turned(120.0))  # turned away: none of them in view
         settings = corrector.settings
         corrector.settings = dataclasses.replace(settings, min_inliers=10_000)
-        assert not corrector._due(moved(4.0))  # too few to be located, however many
+        assert not corrector._due(turned(4.0))  # too few to be located, however many
+
+
+@pytest.mark.parametrize("frames", ["overlap", "track"])
+def test_only_the_overlap_rule_adds_views_near_the_goal(scene, frames):
+    """A fixed step on, the view still sharing most of its fiducials with the last
+    frame's and the goal's: ``frames = "overlap"`` takes a frame there (the estimate's
+    fiducials are measured from many views), ``"track"`` does not; turned away from
+    them, both do (the track needs one)."""
+    correction = dataclasses.replace(load_scenario().correction, frames=frames)
+    with _resting_corrector(scene, correction, goal_yaw_deg=5.0) as (corrector, turned):
+        tracker = corrector._tracker
+        assert tracker is not None
+        size = (corrector.pinhole.width, corrector.pinhole.height)
+        near = turned(4.0)
+        assert tracker.overlap(corrector._predict(near), size) >= correction.frame_overlap
+        assert corrector._due(near) == (frames == "overlap")
+        far = turned(60.0)
+        assert tracker.overlap(corrector._predict(far), size) < correction.frame_overlap
+        assert corrector._due(far)
 
 
 @pytest.mark.slow

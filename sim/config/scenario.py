@@ -293,7 +293,9 @@ class CorrectionConfig(Checked):
     stereo frames are taken along the move, the fiducials tracked through them, and the
     final pose estimated from the best-rated ones (eq. 8) by ``estimator``. With
     ``frames = "overlap"`` a frame is taken when fewer than ``frame_overlap`` of the last
-    located frame's fiducials are predicted findable; with ``"fixed"`` whenever the
+    located frame's fiducials are predicted findable, and at every fixed step while the
+    view shares that much with the goal's; with ``"track"`` only when the overlap
+    falls (the track's frames alone, kept for comparison); with ``"fixed"`` whenever the
     camera turned ``frame_every_deg`` or moved ``frame_every_m``. A keypoint's right
     pixel is found by ``stereo``: "correlation" along its row, "descriptors" matched
     to the right image's keypoints, or "flow" (optical flow from the left image).
@@ -304,7 +306,7 @@ class CorrectionConfig(Checked):
     fiducials: int = checked(lambda v: 4 <= v <= 500, "an integer 4 to 500", 24)  # picked
     detector: Literal["sift", "orb"] = "sift"
     stereo: Literal["correlation", "descriptors", "flow"] = "descriptors"
-    frames: Literal["overlap", "fixed"] = "overlap"
+    frames: Literal["overlap", "track", "fixed"] = "overlap"
     frame_overlap: float = checked(lambda v: 0 < v < 1, "a number between 0 and 1", 0.5)
     frame_every_deg: float = positive(3.0)  # a frame when the commanded camera turned
     frame_every_m: float = positive(0.03)  # ... or moved this much since the last

@@ -114,7 +114,8 @@ class PoseCorrector:
         fixed rule's step while the
         view shares that much with the goal's: the fiducials the final pose is estimated
         from are then measured from many views, which their positions average (each
-        frame's pixel noise is its own). With ``"fixed"``: when it has turned
+        frame's pixel noise is its own). With ``"track"``: when the overlap falls alone.
+        With ``"fixed"``: when it has turned
         ``frame_every_deg`` or moved ``frame_every_m`` since the last frame. On a retrace
         frames are twice as dense."""
         assert self._tracker is not None, "begin() first"
@@ -131,7 +132,7 @@ class PoseCorrector:
         wanted = 1 - (1 - cfg.frame_overlap) / denser
         if self._tracker.overlap(self._predict(T_measured), size) < wanted:
             return True
-        return bool(stepped) and self._tracker.overlap(
+        return cfg.frames == "overlap" and bool(stepped) and self._tracker.overlap(
             self._predict(self._goal_measured), size) >= cfg.frame_overlap
 
     def _relocatable(self, overlap: float) -> bool:
