@@ -7,7 +7,10 @@ variant, on the same seeds in one run: ``taskcam`` (the scenario as it is), ``ba
 both images matched along the rows) and
 ``orb`` (the scenario's tracker with ORB corners refined to sub-pixel instead of SIFT),
 ``correlation`` (right pixels by correlation along the row instead of SIFT matching)
-and ``flow`` (right pixels by optical flow from the left image instead).
+``flow`` (right pixels by optical flow from the left image instead), ``akaze`` (AKAZE
+for SIFT; it needs OpenCV's contrib modules: :func:`akaze`), and two with fewer frames:
+``track`` (no views added near the goal) and ``overlap30`` (a frame when under 0.3 of
+the last frame's fiducials are expected found again).
 For each it compares, against the simulator's truth, the camera pose before correction
 (the commanded one), after it with each estimator on the same fiducials (the paper's
 linear fit, Kabsch, SQPnP), and the bundle adjustment's own last pose; and the wall time
@@ -21,9 +24,11 @@ variant's time per move over the baseline's.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import sys
 import time
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -34,6 +39,7 @@ from sim.world.gl import resolve_gl_backend
 resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
 
 # isort: split
+import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -51,11 +57,59 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # frames when under 0.3 of the last frame's fiducials are expected found again
     "track": {"frames": "track"},
     "overlap30": {"frame_overlap": 0.3},
+    "akaze": {},  # the scenario's tracker with AKAZE for SIFT: see akaze()
 }
 # Wall seconds a move's correction may spend on each part (issue 23: 1.5 s in all, one
 # worker): about five stereo frames of two renders, a segmentation and SIFT on the pair,
 # one bundle adjustment of them and the final estimate.
 BUDGET_S = {"render": 0.45, "features": 0.5, "track": 0.15, "bundle": 0.25, "estimate": 0.15}
+
+
+@contextlib.contextmanager
+def akaze(threshold: float = 1e-5, most_bits: float = 120.0) -> Iterator[None]:
+    """The tracker with AKAZE keypoints and descriptors instead of SIFT's, while inside.
+    AKAZE is in opencv-contrib's ``xfeatures2d`` (OpenCV 5 moved it out of the main
+    package), which the lock does not install: in a separate environment,
+    ``pip install --no-deps opencv-contrib-python-headless==5.0.0.93`` ahead of the
+    project's packages. Every keypoint is found and described in one pass (AKAZE's
+    nonlinear scale space is most of its cost; describing the kept ones apart builds it
+    again: 64 + 56 ms against 91 ms an image), then the spread ones are kept. A response
+    threshold of 1e-5 finds about as many keypoints as SIFT at the tracker's contrast
+    (2800-4400 an image); the 486-bit descriptors are compared by Hamming distance, and
+    one further than a quarter of their bits (120) matches nothing."""
+    import calibration.tracking as tracking
+
+    contrib = getattr(cv2, "xfeatures2d", None)
+    if contrib is None:
+        raise SystemExit("bench/pose_correction.py: --variants akaze needs OpenCV's contrib "
+                         "modules (see the akaze() docstring)")
+    init, keypoints = tracking.FeatureFinder.__init__, tracking.FeatureFinder.keypoints
+    limit = tracking.DESCRIPTOR_MAX["orb"]  # byte descriptors are looked up as ORB's
+
+    def akaze_init(self: Any, settings: Any) -> None:
+        init(self, settings)
+        self.detector = contrib.AKAZE_create(threshold=threshold)
+        self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+
+    def akaze_keypoints(self: Any, gray: np.ndarray, mask: np.ndarray,
+                        expected: np.ndarray | None = None) -> tuple[np.ndarray, Any]:
+        every, descriptors = self.detector.detectAndCompute(gray, mask)
+        if descriptors is None or not every:
+            return np.zeros((0, 2)), None
+        keep = tracking.spread(np.array([k.response for k in every]),
+                               np.array([k.pt for k in every]), gray.shape[::-1],
+                               self.settings.features, expected)
+        return np.array([every[i].pt for i in keep], float).reshape(-1, 2), descriptors[keep]
+
+    tracking.FeatureFinder.__init__ = akaze_init  # type: ignore[method-assign]
+    tracking.FeatureFinder.keypoints = akaze_keypoints  # type: ignore[method-assign]
+    tracking.DESCRIPTOR_MAX["orb"] = most_bits
+    try:
+        yield
+    finally:
+        tracking.FeatureFinder.__init__ = init  # type: ignore[method-assign]
+        tracking.FeatureFinder.keypoints = keypoints  # type: ignore[method-assign]
+        tracking.DESCRIPTOR_MAX["orb"] = limit
 
 
 def one_seed(job: tuple[str, int]) -> list[dict[str, Any]]:
@@ -66,10 +120,11 @@ def one_seed(job: tuple[str, int]) -> list[dict[str, Any]]:
     scenario = load_scenario(seed=seed)
     scenario = dataclasses.replace(scenario, correction=dataclasses.replace(
         scenario.correction, **VARIANTS[variant]))
-    episode = Episode(scenario)
-    start = time.perf_counter()
-    summary, _ = episode.run()
-    elapsed = time.perf_counter() - start
+    with akaze() if variant == "akaze" else contextlib.nullcontext():
+        episode = Episode(scenario)
+        start = time.perf_counter()
+        summary, _ = episode.run()
+        elapsed = time.perf_counter() - start
     rows = []
     for robot in summary["robots"]:  # the move to each robot's first placement
         c = robot["placements"][0].get("correction")
