@@ -114,10 +114,10 @@ class PoseCorrector:
         fixed rule's step while the
         view shares that much with the goal's: the fiducials the final pose is estimated
         from are then measured from many views, which their positions average (each
-        frame's pixel noise is its own). With ``"track"``: when the overlap falls alone.
-        With ``"fixed"``: when it has turned
-        ``frame_every_deg`` or moved ``frame_every_m`` since the last frame. On a retrace
-        frames are twice as dense."""
+        frame's pixel noise is its own). With ``"track"``: as ``"overlap"``, without the
+        frames near the goal. With ``"fixed"``: when it has turned ``frame_every_deg`` or
+        moved ``frame_every_m`` since the last frame. On a retrace frames are twice as
+        dense."""
         assert self._tracker is not None, "begin() first"
         cfg, last = self.cfg, self._last_measured
         denser = 2.0 if self._retraced else 1.0
