@@ -14,7 +14,9 @@ the last frame's fiducials are expected found again).
 For each it compares, against the simulator's truth, the camera pose before correction
 (the commanded one), after it with each estimator on the same fiducials (the paper's
 linear fit, Kabsch, SQPnP), and the bundle adjustment's own last pose; and the wall time
-of a move's correction by part, against each part's budget. The last lines give each
+of a move's correction by part, against each part's budget, and by frame: why each was
+taken (the first, to carry the track, a view near the goal, the final one), with what a
+move would cost were its track frames free. The last lines give each
 variant's time per move over the baseline's.
 
     .venv/bin/python bench/pose_correction.py [--seeds 12] [--workers 1] \
@@ -136,7 +138,8 @@ def one_seed(job: tuple[str, int]) -> list[dict[str, Any]]:
                          "status": c.get("status"), "sd": c.get("sd"),
                          "frames": c["frames"], "located": c["frames_located"],
                          "failed": c.get("failed"), "errors": errors,
-                         "seconds": c.get("timings_s", {}), "episode_s": elapsed})
+                         "seconds": c.get("timings_s", {}), "episode_s": elapsed,
+                         "frames_by_kind": c.get("frames_by_kind", {})})
     return rows
 
 
@@ -165,6 +168,12 @@ def report(variant: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
     print("  part      mean s  budget s")
     for k, v in seconds.items():
         print(f"  {k:<9} {v:>6.2f} {BUDGET_S[k]:>9.2f}{'  over' if v > BUDGET_S[k] else ''}")
+    out["frames_by_kind"] = by_kind(rows)
+    if "track" in out["frames_by_kind"]:
+        rest = out["seconds_per_move"] - out["frames_by_kind"]["track"]["s_per_move"]
+        out["without_track_frames_s"] = rest
+        print(f"  a move with its track frames free: {rest:.2f} s (budget "
+              f"{sum(BUDGET_S.values()):.2f})")
     ratios = [(e["position_m"] / r["sd"]["position_m"], e["orientation_deg"] / r["sd"][
         "orientation_deg"]) for r in rows if (e := r["errors"].get("sqpnp"))
         and r["sd"] and r["sd"]["position_m"] > 0 and r["sd"]["orientation_deg"] > 0]
@@ -177,6 +186,21 @@ def report(variant: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
     for r in rows:
         if r["failed"]:
             print(f"  seed {r['seed']} {r['robot']}: {r['failed']}")
+    return out
+
+
+def by_kind(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Prints and returns a move's frames by why each was taken (first, track, goal
+    view, step, final, wider search: the final frame tracked again): frames and wall
+    seconds a move (mean), seconds a frame."""
+    kinds = dict.fromkeys(k for r in rows for k in r["frames_by_kind"])
+    out = {}
+    print("  frames    a move  s a move  s a frame")
+    for kind in kinds:
+        n = float(np.mean([r["frames_by_kind"].get(kind, {}).get("count", 0) for r in rows]))
+        s = float(np.mean([r["frames_by_kind"].get(kind, {}).get("time_s", 0.0) for r in rows]))
+        out[kind] = {"frames_per_move": n, "s_per_move": s, "s_per_frame": s / max(n, 1e-9)}
+        print(f"  {kind:<13} {n:>5.1f} {s:>8.2f} {s / max(n, 1e-9):>10.3f}")
     return out
 
 

@@ -109,7 +109,7 @@ def test_a_lost_track_takes_a_frame_only_where_it_expects_to_be_located_again(sc
         assert tracker is not None and len(tracker.frames[0].observations) >= 100
         tracker.frames.append(Frame(tracker.frames[0].g01, {}, located=False))
         assert not corrector._due(turned(0.0))  # not the fixed step yet
-        assert corrector._due(turned(4.0))  # a step on, still facing the fiducials
+        assert corrector._due(turned(4.0)) == "track"  # a step on, still facing them
         assert not corrector._due(turned(120.0))  # turned away: none of them in view
         settings = corrector.settings
         corrector.settings = dataclasses.replace(settings, min_inliers=10_000)
@@ -129,10 +129,10 @@ def test_only_the_overlap_rule_adds_views_near_the_goal(scene, frames):
         size = (corrector.pinhole.width, corrector.pinhole.height)
         near = turned(4.0)
         assert tracker.overlap(corrector._predict(near), size) >= correction.frame_overlap
-        assert corrector._due(near) == (frames == "overlap")
+        assert corrector._due(near) == ("goal view" if frames == "overlap" else "")
         far = turned(60.0)
         assert tracker.overlap(corrector._predict(far), size) < correction.frame_overlap
-        assert corrector._due(far)
+        assert corrector._due(far) == "track"
 
 
 @pytest.mark.slow
@@ -169,6 +169,7 @@ def test_corrector_recovers_a_camera_whose_joints_erred_along_a_rendered_move(sc
         assert result.status == "corrected" and result.start_sd == (0.0, 0.0)
         assert result.estimate is not None and result.estimate.count >= 8
         assert result.located >= 0.8 * result.frames
+        _assert_frames_accounted(result.summary())
         assert all(f.covariance.shape == (3, 3) and len(f.track) >= 2 for f in result.used)
 
         goal2 = _goal(scene, robot, belief.qpos, np.array([-0.35, -0.5, 0.5]))
@@ -188,6 +189,20 @@ def test_corrector_recovers_a_camera_whose_joints_erred_along_a_rendered_move(sc
     assert again.sd[0] >= result.sd[0]  # the start's uncertainty is carried
     _, blind = outcomes[True]  # the first move's error unseen: lost, or that far off
     assert blind is None or blind["position_m"] > 0.01
+
+
+def _assert_frames_accounted(c: dict) -> None:
+    """A correction's frames by kind: one first frame, a final one per try at the goal,
+    every frame counted once (a wider search tracks the final frame again, taking none),
+    their time a share of the move's render, feature and tracking time."""
+    kinds = c["frames_by_kind"]
+    assert kinds["first"]["count"] == 1 and kinds["final"]["count"] >= 1
+    assert set(kinds) <= {"first", "track", "goal view", "final", "wider search"}
+    taken = sum(k["count"] for name, k in kinds.items() if name != "wider search")
+    assert taken == c["frames"]
+    parts = c["timings_s"]
+    framing = parts["render"] + parts["features"] + parts["track"]
+    assert 0.5 * framing < sum(k["time_s"] for k in kinds.values()) <= 1.05 * framing
 
 
 def test_rotation_between_poses_by_hand():
@@ -212,6 +227,7 @@ def test_episode_reports_the_correction_against_the_truth(default_run):
         assert robot["estimated_pose"]["position"] != robot["commanded_pose"]["position"]
         assert set(c["other_estimators_error"]) <= {"linear", "kabsch"}
         assert c["frames_located"] >= 0.8 * c["frames"]
+        _assert_frames_accounted(c)
     paths = set(RrdReader(out / "run.rrd").store().schema().entity_paths())
     for name in ("r1", "r2"):
         assert f"/world/{name}/fiducials" in paths

@@ -111,6 +111,9 @@ class Correction:
     tried: list[str] = field(default_factory=list)  # the recoveries tried, in order
     retrace_from: np.ndarray | None = None  # joints of the last located frame, to go back to
     seconds: dict[str, float] = field(default_factory=dict)  # wall time by part
+    # its frames by why each was taken ("first", "track", "goal view", "step", "final",
+    # "wider search": the last tracked again): how many (count) and their wall time (time_s)
+    frames_by_kind: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def status(self) -> str:
@@ -173,6 +176,7 @@ class Correction:
                         "rating": round(f.rating, 4), "track_length": len(f.track)}
                        for f in self.used]
         out["timings_s"] = self.seconds  # wall time by part
+        out["frames_by_kind"] = self.frames_by_kind
         return out
 
 

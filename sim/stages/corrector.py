@@ -62,6 +62,7 @@ class PoseCorrector:
         self._start_sd = (0.0, 0.0)  # of the pose the move started from
         self._goal_measured = np.eye(4)  # the camera pose the joints' goal puts it at
         self._timer = Timer()  # wall seconds of this move's correction, by part
+        self._kinds = Timer()  # ... and its frames' (and how many), by why each was taken
 
     # ------------------------------------------------------------ along the move
 
@@ -81,13 +82,16 @@ class PoseCorrector:
         deviation in m and deg), or where the joints put it when no move has made an
         error yet."""
         self._tracker = FiducialTracker(self.camera, self.settings)
-        self._timer = Timer()
+        self._timer, self._kinds = Timer(), Timer()
         start_joints = path[0]
         self._goal_measured = self.nominal_pose(robot, path[-1])
         measured = self.nominal_pose(robot, start_joints)  # frames are predicted from it
         T = measured if start is None else opencv_pose(start[0])
         self._start_sd = (0.0, 0.0) if start is None else start[1]
-        frame = self._tracker.start(self._look(robot), invert(T))
+        with self._kinds("first"):
+            found = self._look(robot)
+            with self._timer("track"):  # its fiducials seeded
+                frame = self._tracker.start(found, invert(T))
         self._last_measured = self._located_measured = measured
         self._last_located = frame.g01
         self._joints = np.array(start_joints, copy=True)
@@ -101,22 +105,23 @@ class PoseCorrector:
         def sample(t: float, measured: np.ndarray) -> None:
             self._joints = np.array(measured, copy=True)
             T = self.nominal_pose(robot, measured)
-            if self._due(T):
-                self._frame(robot, T)
+            kind = self._due(T)
+            if kind:
+                self._frame(robot, T, kind)
         return sample
 
-    def _due(self, T_measured: np.ndarray) -> bool:
-        """Whether the camera, where the joints put it, needs a frame. With ``frames =
-        "overlap"``: when fewer than ``frame_overlap`` of the last located frame's
-        fiducials are predicted findable from the predicted pose (after a frame that was
-        not located, only once the camera has also moved the fixed rule's step and is
-        expected to see enough of them to be located: :meth:`_relocatable`), and at the
-        fixed rule's step while the
+    def _due(self, T_measured: np.ndarray) -> str:
+        """Which frame the camera, where the joints put it, needs; "" if none. With
+        ``frames = "overlap"``: a ``"track"`` frame when fewer than ``frame_overlap`` of
+        the last located frame's fiducials are predicted findable from the predicted pose
+        (after a frame that was not located, only once the camera has also moved the fixed
+        rule's step and is expected to see enough of them to be located:
+        :meth:`_relocatable`), and a ``"goal view"`` at the fixed rule's step while the
         view shares that much with the goal's: the fiducials the final pose is estimated
         from are then measured from many views, which their positions average (each
         frame's pixel noise is its own). With ``"track"``: as ``"overlap"``, without the
-        frames near the goal. With ``"fixed"``: when it has turned ``frame_every_deg`` or
-        moved ``frame_every_m`` since the last frame. On a retrace frames are twice as
+        goal views. With ``"fixed"``: a ``"step"`` when it has turned ``frame_every_deg``
+        or moved ``frame_every_m`` since the last frame. On a retrace frames are twice as
         dense."""
         assert self._tracker is not None, "begin() first"
         cfg, last = self.cfg, self._last_measured
@@ -124,16 +129,17 @@ class PoseCorrector:
         stepped = (rotation_deg(last, T_measured) >= cfg.frame_every_deg / denser
                    or np.linalg.norm(T_measured[:3, 3] - last[:3, 3]) >= cfg.frame_every_m / denser)
         if cfg.frames == "fixed":
-            return bool(stepped)
+            return "step" if stepped else ""
         size = (self.pinhole.width, self.pinhole.height)
         if not self._tracker.frames[-1].located:
-            return bool(stepped) and self._relocatable(
-                self._tracker.overlap(self._predict(T_measured), size))
+            return "track" if stepped and self._relocatable(
+                self._tracker.overlap(self._predict(T_measured), size)) else ""
         wanted = 1 - (1 - cfg.frame_overlap) / denser
         if self._tracker.overlap(self._predict(T_measured), size) < wanted:
-            return True
-        return cfg.frames == "overlap" and bool(stepped) and self._tracker.overlap(
+            return "track"
+        near_goal = cfg.frames == "overlap" and stepped and self._tracker.overlap(
             self._predict(self._goal_measured), size) >= cfg.frame_overlap
+        return "goal view" if near_goal else ""
 
     def _relocatable(self, overlap: float) -> bool:
         """Whether a frame with this predicted overlap (with the last located frame) is
@@ -151,9 +157,15 @@ class PoseCorrector:
         motion = invert(self._located_measured) @ T_measured
         return invert(invert(self._last_located) @ motion)
 
-    def _frame(self, robot: Robot, T_measured: np.ndarray, wider: float | None = None) -> bool:
-        """Takes a frame (or, ``wider``, tracks the last again that much further afield);
-        whether it was located."""
+    def _frame(self, robot: Robot, T_measured: np.ndarray, kind: str,
+               wider: float | None = None) -> bool:
+        """Takes a frame of a ``kind`` (why it is taken: :meth:`_due`, or "final") or,
+        ``wider``, tracks the last again that much further afield; whether it was
+        located."""
+        with self._kinds(kind):
+            return self._take(robot, T_measured, wider)
+
+    def _take(self, robot: Robot, T_measured: np.ndarray, wider: float | None) -> bool:
         assert self._tracker is not None, "begin() first"
         predicted = self._predict(T_measured)
         if wider is None:
@@ -173,7 +185,7 @@ class PoseCorrector:
         """The last frame tracked again, its fiducials looked for ``WIDER`` times as far
         from their predicted pixels and its pose allowed as much further from the
         prediction; whether it was located."""
-        return self._frame(robot, self._last_measured, WIDER)
+        return self._frame(robot, self._last_measured, "wider search", WIDER)
 
     def retrace(self, path: np.ndarray, back_to: np.ndarray) -> np.ndarray:
         """The way (k, 9) back along ``path`` to its waypoint nearest the joints
@@ -218,13 +230,13 @@ class PoseCorrector:
         time of the move's correction so far, by part (render, features, track, bundle,
         estimate)."""
         out = self._finish(robot, last_try)
-        return replace(out, seconds=self._timer.rounded(4))
+        return replace(out, seconds=self._timer.rounded(4), frames_by_kind=self._kinds.counted(4))
 
     def _finish(self, robot: Robot, last_try: bool) -> Correction:
         tracker = self._tracker
         assert tracker is not None, "begin() first"
         tried = ["wider search", "retrace"] if self._retraced else []
-        located = self._frame(robot, self.nominal_pose(robot, self._joints))
+        located = self._frame(robot, self.nominal_pose(robot, self._joints), "final")
         if not located:
             if not self._retraced:
                 tried.append("wider search")

@@ -9,13 +9,15 @@ from contextlib import contextmanager
 
 
 class Timer:
-    """Accumulates wall-clock seconds per stage."""
+    """Accumulates wall-clock seconds per stage, and how often each was timed."""
 
     def __init__(self) -> None:
         self._totals: dict[str, float] = defaultdict(float)
+        self._counts: dict[str, int] = defaultdict(int)
 
     @contextmanager
     def __call__(self, stage: str) -> Iterator[None]:
+        self._counts[stage] += 1
         start = time.perf_counter()
         try:
             yield
@@ -35,3 +37,9 @@ class Timer:
     def rounded(self, digits: int) -> dict[str, float]:
         """Seconds per stage, in the order first timed, rounded to ``digits``."""
         return {k: round(v, digits) for k, v in self._totals.items()}
+
+    def counted(self, digits: int) -> dict[str, dict[str, float]]:
+        """Per stage timed by ``with timer(stage)``, in the order first timed: how often
+        (``count``) and its wall seconds in all (``time_s``, rounded to ``digits``)."""
+        return {k: {"count": n, "time_s": round(self._totals[k], digits)}
+                for k, n in self._counts.items()}
