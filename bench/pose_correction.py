@@ -199,8 +199,9 @@ def by_kind(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
     for kind in kinds:
         n = float(np.mean([r["frames_by_kind"].get(kind, {}).get("count", 0) for r in rows]))
         s = float(np.mean([r["frames_by_kind"].get(kind, {}).get("time_s", 0.0) for r in rows]))
-        out[kind] = {"frames_per_move": n, "s_per_move": s, "s_per_frame": s / max(n, 1e-9)}
-        print(f"  {kind:<13} {n:>5.1f} {s:>8.2f} {s / max(n, 1e-9):>10.3f}")
+        each = s / max(n, 1e-9)
+        out[kind] = {"frames_per_move": n, "s_per_move": s, "s_per_frame": each}
+        print(f"  {kind:<13} {n:>5.1f} {s:>8.2f} {each:>10.3f}")
     return out
 
 
