@@ -11,7 +11,7 @@ from .camera import (
     world_to_camera,
 )
 from .errors import MappingError
-from .floor_map import FloorMap, ray_directions
+from .floor_map import FloorMap, drive_lengths, ray_directions
 from .grid import LOG_ODDS_SCALE, OccupancyGrid, SensorModel, logit, stored_log_odds
 from .integrate import integrate_depth
 from .obstacle_field import ObstacleField
@@ -25,6 +25,7 @@ __all__ = [
     "MUJOCO_TO_OPENCV",
     "BoxModel",
     "FloorMap",
+    "drive_lengths",
     "GainModel",
     "LyingPose",
     "MappingError",

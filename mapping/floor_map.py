@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from .obstacle_field import ObstacleField
 
@@ -87,3 +89,34 @@ def ray_directions(count: int) -> np.ndarray:
     """``count`` unit directions (count, 2) evenly round the circle, from +x."""
     a = np.arange(count) * (2 * math.pi / count)
     return np.column_stack([np.cos(a), np.sin(a)])
+
+
+def drive_lengths(clear: np.ndarray, start: tuple[int, int], cell_m: float,
+                  limit_m: float) -> np.ndarray:
+    """The shortest drive (m) from cell ``start`` to every cell of the raster ``clear``
+    (bool, (nx, ny)), through clear cells side by side or corner to corner (a diagonal
+    step only where both cells beside it are clear: the base does not cut a corner);
+    inf where none is at most ``limit_m`` long (Dijkstra's, as scipy has it)."""
+    out = np.full(clear.shape, np.inf)
+    if not clear[start]:
+        return out
+    index = np.full(clear.shape, -1, np.int64)
+    index[clear] = np.arange(int(clear.sum()))
+    i, j = np.nonzero(clear)
+    rows, cols, lengths = [], [], []
+    for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        k, m = i + di, j + dj
+        inside = (k < clear.shape[0]) & (m >= 0) & (m < clear.shape[1])
+        a, b, k, m = i[inside], j[inside], k[inside], m[inside]
+        step = clear[k, m]
+        if di and dj:  # the two cells a diagonal passes between
+            step &= clear[a + di, b] & clear[a, b + dj]
+        rows.append(index[a[step], b[step]])
+        cols.append(index[k[step], m[step]])
+        lengths.append(np.full(int(step.sum()), cell_m * math.hypot(di, dj)))
+    n = int(clear.sum())
+    graph = coo_matrix((np.concatenate(lengths), (np.concatenate(rows), np.concatenate(cols))),
+                       shape=(n, n)).tocsr()
+    found = dijkstra(graph, directed=False, indices=int(index[start]), limit=limit_m)
+    out[clear] = found
+    return out

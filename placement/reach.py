@@ -123,6 +123,18 @@ class ReachMap:
         outer edge)."""
         return float(self.cells.r_of(self.keys).max()) if len(self.keys) else 0.0
 
+    def reach_at(self, z: np.ndarray) -> np.ndarray:
+        """The farthest the camera gets from the pivot, horizontally (m), at each height
+        ``z`` (m), looking any way; 0 where it never gets."""
+        c = self.cells
+        per_column = c.n_elevation * c.n_azimuth
+        column = self.keys // per_column
+        farthest = np.zeros(c.n_z)
+        np.maximum.at(farthest, column % c.n_z, (column // c.n_z + 1) * c.r_step)
+        iz = np.floor((np.asarray(z, float) - c.z_low) / c.z_step).astype(np.int64)
+        inside = (iz >= 0) & (iz < c.n_z)
+        return np.where(inside, farthest[np.clip(iz, 0, c.n_z - 1)], 0.0)
+
     def _find(self, keys: np.ndarray) -> np.ndarray:
         """Each key's row in the map, -1 where it was never reached."""
         if not len(self.keys):
@@ -209,7 +221,7 @@ class ReachMap:
 def build_reach_map(chain: Chain, valid: Callable[[np.ndarray], bool],
                     rng: np.random.Generator, samples: int = 2_000_000,
                     cells: ReachCells = ReachCells(), batch: int = 100_000,
-                    spread_rad: float = 0.15) -> ReachMap:
+                    spread_rad: float = 0.15, home: np.ndarray | None = None) -> ReachMap:
     """Sample ``samples`` arm configurations, put the camera (the chain's tool; it looks
     along its -z axis, as a MuJoCo camera does) in its cell, and keep the first
     configuration in each cell that ``valid`` accepts (clear of itself and the floor;
@@ -217,12 +229,20 @@ def build_reach_map(chain: Chain, valid: Callable[[np.ndarray], bool],
     chain's limits (a joint with more than a whole turn of range over one turn: the same
     poses); the other half turn the configurations found so far by a normal draw of
     ``spread_rad`` a joint, which fills the cells next to those reached (the edges of the
-    reachable space, where uniform draws land seldom)."""
+    reachable space, where uniform draws land seldom). With a ``home`` configuration
+    (k,; rad), each cell keeps instead the drawn configuration nearest it (joint space;
+    a joint that turns round, the shorter way) that ``valid`` accepts: the posture the
+    arm is brought to is then the most like its home, as a person would choose it,
+    and the move there the shortest."""
     if samples < 1 or batch < 1:
         raise PlacementError(f"samples and batch must be >= 1, got {samples}, {batch}")
     lower = np.maximum(chain.lower, np.minimum(chain.upper - 2 * math.pi, -math.pi))
     upper = np.minimum(chain.upper, lower + 2 * math.pi)
     found: dict[int, tuple[np.ndarray, float]] = {}
+    turns = (chain.upper - chain.lower) >= 2 * math.pi - 1e-9
+    nearest = np.full(cells.count if home is not None else 0, np.inf)
+    nearest_angles = np.zeros((len(nearest), len(lower)), np.float32)
+    nearest_bearing = np.zeros(len(nearest), np.float32)
     drawn = 0
     while drawn < samples:
         size = min(batch, samples - drawn)
@@ -240,11 +260,26 @@ def build_reach_map(chain: Chain, valid: Callable[[np.ndarray], bool],
         bearing = np.arctan2(pos[:, 1], pos[:, 0])
         keys = cells.keys(r, pos[:, 2], direction, bearing)
         fresh = np.flatnonzero(keys >= 0)
+        if home is not None:
+            off = angles[fresh] - home
+            off[:, turns] = np.mod(off[:, turns] + math.pi, 2 * math.pi) - math.pi
+            distance = np.linalg.norm(off, axis=1)
+            by_distance = np.lexsort((distance, keys[fresh]))
+            cell, first = np.unique(keys[fresh][by_distance], return_index=True)
+            pick = by_distance[first]
+            better = distance[pick] < nearest[cell]
+            cell, pick = cell[better], fresh[pick[better]]
+            nearest[cell] = distance[np.searchsorted(fresh, pick)]
+            nearest_angles[cell] = angles[pick]
+            nearest_bearing[cell] = bearing[pick]
         fresh = fresh[~np.isin(keys[fresh], np.fromiter(found, np.int64, len(found)))]
         for i in fresh:  # in draw order: the same seed, the same map
             key = int(keys[i])
             if key not in found and valid(angles[i]):
                 found[key] = (angles[i], float(bearing[i]))
+    for key in found if home is not None else ():
+        if valid(nearest_angles[key]):  # the nearest home is kept if it is clear
+            found[key] = (nearest_angles[key], float(nearest_bearing[key]))
     order = sorted(found)
     return ReachMap(cells, np.array(order, np.int64),
                     np.array([found[k][0] for k in order], np.float32).reshape(len(order), -1),

@@ -116,7 +116,7 @@ def mapped(scene, occupied_boxes: list[tuple[np.ndarray, np.ndarray]],
 
 
 def map_planner(scene, grid, floor: FloorMap) -> ArmPlanner:
-    return ArmPlanner(scene, scene.make_data(), CLEARANCE_M, CLEARANCE_M + 0.02, drive_m=2.0,
+    return ArmPlanner(scene, scene.make_data(), CLEARANCE_M, CLEARANCE_M + 0.02, drive_m=4.0,
                       rng=np.random.default_rng(3), grid=grid, floor=floor)
 
 

@@ -33,7 +33,7 @@ def wall_scene():
 
 
 def planner(scene, seed: int = 3, checks: int = 20000) -> ArmPlanner:
-    return ArmPlanner(scene, scene.make_data(), CLEARANCE_M, CLEARANCE_M + 0.02, drive_m=2.0,
+    return ArmPlanner(scene, scene.make_data(), CLEARANCE_M, CLEARANCE_M + 0.02, drive_m=4.0,
                       checks=checks, rng=np.random.default_rng(seed))
 
 
@@ -164,7 +164,7 @@ def test_a_robot_keeps_out_of_the_insertion_corridor():
     assert plan.reason is None
     # a keep-out box around where the free plan put the camera refuses the candidate
     box = KeepOut(GOAL[None], np.eye(3)[None], np.full((1, 3), 0.1))
-    kept = ArmPlanner(scene, scene.make_data(), CLEARANCE_M, CLEARANCE_M + 0.02, drive_m=2.0,
+    kept = ArmPlanner(scene, scene.make_data(), CLEARANCE_M, CLEARANCE_M + 0.02, drive_m=4.0,
                       rng=np.random.default_rng(3), keep_out=box)
     assert kept.plan(robot, scene.primary.position, GOAL).reason is not None
 

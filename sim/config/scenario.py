@@ -226,8 +226,10 @@ class RatingConfig(Checked):
 @dataclass(frozen=True)
 class SearchConfig(Checked):
     RETIRED: ClassVar[dict[str, str]] = {
-        "reach_m": "bases drive along planned paths: search.drive_m (how far a base may drive "
-                   "from where it starts, m; cameras go within it plus the arm's reach)"}
+        "reach_m": "bases drive along planned paths: search.drive_path_m (how far a base may "
+                   "drive to a view, m, along its path)",
+        "drive_m": "a base's drive is measured along its path now: search.drive_path_m (how "
+                   "far a base may drive to a view, m, along its path; default 6)"}
 
     # the placement method: the rating function, the paper's biased random baseline, or
     # next-best-view by expected information gain about the target region
@@ -245,9 +247,10 @@ class SearchConfig(Checked):
     robot_separation_m: float = nonnegative(0.5)  # between chosen camera positions
     clearance_m: float = nonnegative(0.03)  # robot geometry to anything else, after IK
     camera_z_m: tuple[float, float] = (0.3, 1.6)  # heights the camera may be placed at
-    # How far (m, horizontal) a robot's base may drive from where it starts; its camera
-    # goes anywhere within this plus the arm's reach that a planned path gets to
-    drive_m: float = nonnegative(1.5)
+    # How far a robot's base may drive to a view (m, along its path over the floor it
+    # knows clear): by default it may cross the room it has mapped, the default grid's 3 m
+    # square walked round half its edge; its camera goes wherever the arm reaches from there
+    drive_path_m: float = nonnegative(6.0)
     # The path search's budget per candidate, in validity checks (each a MuJoCo distance
     # query of the robot's pose, about 0.1 ms: 2 s at most): a count, not seconds, so
     # that the same seed plans the same path on any machine

@@ -42,6 +42,7 @@ from sim.stages.slot_target import panel_over_slot, task_targets
 from sim.stages.timer import Timer
 from sim.stages.world import World, build_world
 from sim.world.render import Renderer, camera_pose
+from sim.world.sensing import DepthSensor
 
 VERSION = "0.1.0"
 # the recording's 3-D view is framed for a field of view this wide (deg), its picture
@@ -85,12 +86,14 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
     if s.correction.enabled:
         corrector = PoseCorrector(world.scene, world.belief, world.data, renderer, world.pinhole,
                                   s.camera.baseline_m, world.grid, s.correction)
+    sensor = DepthSensor(renderer, world.pinhole, s.mapping.depth_source, s.camera.baseline_m,
+                         world.scene.robot_geoms())  # for scouting's looks
     placements: dict[str, tuple[Placement, ...]] = {}
     taken: list[np.ndarray] = []
     for robot in world.scene.robots:
         world.recorder.tick()
         p = place(world, problem, robot, taken, targets, method, corrector, prior_sd,
-                  extra=extra)
+                  extra=extra, sensor=sensor)
         world.progress(placement_line(robot.name, p.summary()))
         placements[robot.name] = (p,)
         if p.commanded is not None:

@@ -37,40 +37,48 @@ from sim.stages.exploration import gain_model
 from sim.stages.move import move
 from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import RatingProblem, target_model
+from sim.stages.scout import scout
 from sim.stages.world import World
 from sim.world.base_scanner import scan_into
-from sim.world.collision import blocked_rays, robot_points
+from sim.world.collision import KeepOut, blocked_rays, robot_points
 from sim.world.planning import ArmPlanner
 from sim.world.render import camera_pose
-from sim.world.scene import ARM_REACH_M, Robot
+from sim.world.scene import Robot
+from sim.world.sensing import DepthSensor
 
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
-# Candidates with no clear place for the base near them are refused by a few dozen
-# validity checks (about 5 ms) and do not count as tried; at most this many are passed
-# over (a few seconds), so that a ring of clutter cannot keep the search going forever
+# Candidates whose every stand of the capability map is in collision are refused by a
+# few validity checks (about 1 ms) and do not count as tried; at most this many are
+# passed over, so that a ring of clutter cannot keep the search going forever
 MAX_STANDLESS = 500
+# A robot whose arm would reach a candidate only from space never observed goes to look
+# at most this many times a placement (a trip: a look or two and a drive of a few
+# seconds, or a failed search for a path there, 2 s; three let it look round a wall
+# and again from nearer)
+SCOUT_TRIPS = 3
 
 
 def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
     """Where ``robot``'s camera may go: the scenario's heights, within the arm's reach of
-    where its base may drive (``search.drive_m`` from where it started; where it stands,
-    if bases do not move), and apart from the camera positions already ``taken`` (m)."""
+    where its base may drive (``search.drive_path_m`` from where it stands, as the crow
+    flies: the planner measures the way), and apart from the camera positions already
+    ``taken`` (m)."""
     s = world.scenario
     q = s.search
     keep_out = tuple((tuple(p), q.robot_separation_m) for p in taken)
-    if s.robots.move_base:
-        base, reach = world.scene.start_qpos[robot.qpos_adr[:2]], q.drive_m + ARM_REACH_M
-    else:
-        base, reach = world.belief.qpos[robot.qpos_adr[:2]], ARM_REACH_M
+    base = world.belief.qpos[robot.qpos_adr[:2]]
+    reach = world.arm.reach_m + (q.drive_path_m if s.robots.move_base else 0.0)
     return Region(q.camera_z_m[0], q.camera_z_m[1], keep_out,
                   ((float(base[0]), float(base[1])), reach))
 
 
-def travel_weighed(rated: RatingField, base: np.ndarray, per_m: float) -> RatingField:
+def travel_weighed(rated: RatingField, base: np.ndarray, per_m: float,
+                   reach_m: float) -> RatingField:
     """The field ordered by its rating times exp(-``per_m`` x the base's drive to each
-    candidate: its horizontal distance from ``base`` (m) beyond the arm's reach)."""
+    candidate: its horizontal distance from ``base`` (m) beyond the arm's reach,
+    ``reach_m``)."""
     drive = np.maximum(np.linalg.norm(rated.ratings.positions[:, :2] - base, axis=1)
-                       - ARM_REACH_M, 0.0)
+                       - reach_m, 0.0)
     weighed = rated.ratings.total * np.exp(-per_m * drive)
     order = np.lexsort((np.arange(len(weighed)), -weighed))
     return dataclasses.replace(rated, order=order[weighed[order] > 0])
@@ -89,7 +97,8 @@ def ranked_field(world: World, problem: RatingProblem, robot: Robot,
     rated = problem.field(robot.name, targets, region(world, robot, taken), others,
                           world.belief.qpos, world.rng, world.timer)
     if method == "rating" and s.rating.travel_per_m > 0:
-        return travel_weighed(rated, world.belief.qpos[robot.qpos_adr[:2]], s.rating.travel_per_m)
+        return travel_weighed(rated, world.belief.qpos[robot.qpos_adr[:2]], s.rating.travel_per_m,
+                              world.arm.reach_m)
     if method == "biased_random":
         return biased_random(rated, [target_model(t) for t in targets], problem.camera,
                              world.rng, s.search.random_max_angle_deg)
@@ -123,7 +132,8 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
           targets: tuple[Target, ...], method: str, corrector: PoseCorrector | None,
           prior_sd: tuple[float, float], *, index: int = 0, step: int | None = None,
           reason: str = "initial", extra: Sequence[np.ndarray] = (),
-          avoid: Sequence[np.ndarray] = (), ranked: RatingField | None = None) -> Placement:
+          avoid: Sequence[np.ndarray] = (), ranked: RatingField | None = None,
+          sensor: DepthSensor | None = None) -> Placement:
     """Search, plan and move ``robot`` to view one of ``targets``, given the camera
     positions already ``taken`` (m) and the placement ``method``. ``index``, ``step`` and
     ``reason`` say which of the robot's placements this is (a re-placement during the
@@ -131,7 +141,9 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     ``extra``: further occluders (:func:`ranked_field`); candidates within
     REJECTED_RADIUS_M of a position in ``avoid`` (m) are skipped as a failed one's are;
     ``ranked``: the candidates :func:`ranked_field` gives for these arguments, if the
-    caller has them already."""
+    caller has them already. In the robots' map, a candidate the arm would reach only
+    from space never observed sends the robot scouting (sim/stages/scout.py), at most
+    SCOUT_TRIPS times; with a depth ``sensor`` it looks as well as scans."""
     s, belief = world.scenario, world.belief
     q = s.search
     if ranked is None:
@@ -148,21 +160,26 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     corners = None if corridor is None or method != "rating" else site_corners(corridor)
     # the bases scan the floor where they stand; the planner knows the clutter as mapped
     # (or, as an oracle, as it is: the scans are then not needed)
+    scouting = q.planner_world != "model" and s.robots.move_base
     if q.planner_world != "model":
         scan_into(world.floor, world.model, world.data, belief, world.scene.robots,
                   world.scene.robot_geoms())
-    planner = ArmPlanner(world.scene, belief, q.clearance_m, q.clearance_m + s.motion.ik_margin_m,
-                         s.robots.move_base, drive_m=q.drive_m, checks=q.planning_checks,
-                         rng=world.rng, keep_out=corridor,
-                         places=world.places, **world.planner_maps(q.planner_world))
+    planner = _planner(world, corridor, q.planner_world)
     rejected = [np.asarray(p, float) for p in avoid]
-    standless = 0  # candidates with no place for the base to stand: cheap, not counted
+    standless = 0  # candidates whose every stand was in collision: cheap, not counted
+    trips: list[dict[str, Any]] = []  # looks and drives at space never observed
+    scouted = 0  # trips begun
+    hopeful: ArmPlanner | None = None  # the planner with the never-observed taken as free
+    out_of_reach = 0  # candidates the arm reaches from no place the base gets to
+    farthest: dict[str, Any] | None = None  # the best of them
     order = ranked.ranked()
     with world.timer("ik"):
-        room = planner.standing_room(robot, ranked.ratings.positions[order])
-    roomless = int((~room).sum())  # nowhere to stand within the arm's reach: skipped
-    findable = _findable(ranked, order[room], targets, problem, s.camera.baseline_m)
-    for i in order[room]:
+        maybe = planner.may_stand(robot, ranked.ratings.positions[order])
+    out_of_reach = int((~maybe).sum())
+    if out_of_reach:
+        farthest = _out_of_reach(ranked, int(order[np.argmax(~maybe)]))
+    findable = _findable(ranked, order[maybe], targets, problem, s.camera.baseline_m)
+    for i in order[maybe]:
         if tried >= q.ik_candidates or standless >= MAX_STANDLESS:
             break
         target = targets[int(ranked.target[i])]
@@ -178,6 +195,30 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                                                  s.camera.near_m, s.camera.far_m):
             out_of_frame += 1  # the insertion it is to measure would not be in focus and
             continue  # in frame
+        if s.robots.move_base:
+            with world.timer("ik"):
+                reachable = len(planner.stands(robot, model.position, position).xy) > 0
+            if not reachable and scouting and scouted < SCOUT_TRIPS:
+                with world.timer("ik"):
+                    hopeful = hopeful or _planner(world, corridor, "map_seen")
+                    wanted = hopeful.stands(robot, model.position, position)
+                if len(wanted.xy):  # from space never observed the arm might reach it
+                    scouted += 1
+                    trip = scout(world, robot, wanted.xy[0],
+                                 lambda kind: _planner(world, corridor, kind),
+                                 model.position, position, prior_sd, sensor)
+                    if trip is not None:
+                        trips.append(trip)
+                        planner, hopeful = _planner(world, corridor, q.planner_world), None
+                        with world.timer("ik"):
+                            reachable = len(planner.stands(robot, model.position,
+                                                           position).xy) > 0
+            if not reachable:
+                out_of_reach += 1  # from no place the base gets to does the arm reach it
+                if farthest is None or ranked.ratings.total[i] > farthest["rating"]:
+                    farthest = _out_of_reach(ranked, int(i))
+                continue
+        start = belief.qpos.copy()
 
         tried += 1
         rejected.append(position)
@@ -209,10 +250,29 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         return Placement(robot, index, step, reason, target, position, commanded_pose,
                          camera_pose(world.data, robot.camera), ranked.ratings.terms(int(i)),
                          plan.ik, motion, correction, plan=plan, candidates_tried=tried,
-                         undetectable=undetectable, site_unseen=out_of_frame, roomless=roomless,
-                         rejections=dict(rejections),
-                         unreachable=unreachable, **counts)
+                         undetectable=undetectable, site_unseen=out_of_frame,
+                         out_of_reach=out_of_reach, farthest=farthest, trips=trips,
+                         rejections=dict(rejections), unreachable=unreachable, **counts)
     return Placement(robot, index, step, reason, candidates_tried=tried,
-                     undetectable=undetectable, site_unseen=out_of_frame, roomless=roomless,
-                         rejections=dict(rejections),
-                     unreachable=unreachable, **counts)
+                     undetectable=undetectable, site_unseen=out_of_frame,
+                     out_of_reach=out_of_reach, farthest=farthest, trips=trips,
+                     rejections=dict(rejections), unreachable=unreachable, **counts)
+
+
+def _planner(world: World, corridor: KeepOut | None, kind: str) -> ArmPlanner:
+    """A planner for the world's robots in the planner's world ``kind``
+    (``search.planner_world``), as the maps now are."""
+    s = world.scenario
+    q = s.search
+    return ArmPlanner(world.scene, world.belief, q.clearance_m,
+                      q.clearance_m + s.motion.ik_margin_m, s.robots.move_base,
+                      drive_m=q.drive_path_m, room=world.room, arm=world.arm,
+                      checks=q.planning_checks, rng=world.rng, keep_out=corridor,
+                      places=world.places, **world.planner_maps(kind))
+
+
+def _out_of_reach(ranked: RatingField, i: int) -> dict[str, Any]:
+    """A candidate the arm cannot reach, as a refusal names it."""
+    position = ranked.ratings.positions[i]
+    return {"rating": float(ranked.ratings.total[i]), "position": position.round(3).tolist(),
+            "height_m": round(float(position[2]), 3)}

@@ -79,7 +79,9 @@ class Placement:
     undetectable: int = 0  # candidates skipped: the detector could not find the target
     # ... and those that would not hold the insertion site in focus and in frame
     site_unseen: int = 0
-    roomless: int = 0  # ... and those with no clear place for the base within the arm's reach
+    out_of_reach: int = 0  # ... and those the arm reaches from no place the base gets to
+    farthest: dict[str, Any] | None = None  # the best of those: rating, position, height
+    trips: list[dict[str, Any]] = field(default_factory=list)  # drives to look at the floor
     rejections: dict[str, int] = field(default_factory=dict)  # by why
     unreachable: list[dict[str, Any]] = field(default_factory=list)  # why, first few
 
@@ -93,14 +95,23 @@ class Placement:
             return ""
         if self.evaluated == 0:
             return "no known-free candidate in the robot's region"
+        best = ""
+        if self.farthest is not None:
+            f = self.farthest
+            best = (f"; the best out of reach, RF {f['rating']:.3g}, stands "
+                    f"{f['height_m']:.2f} m high at {f['position']}")
+        looked = f"; it drove {len(self.trips)} times to scan the floor" if self.trips else ""
         if self.candidates_tried == 0:
-            standless = self.roomless + self.rejections.get("no place to stand", 0)
-            return ("no candidate with a positive rating from which the detector can find "
-                    "the target, the insertion site is in view and the base has a place to "
-                    f"stand ({self.undetectable} refused as undetectable, {self.site_unseen} "
-                    f"with the site out of view, {standless} with no place to stand)")
+            standless = self.rejections.get("no place to stand", 0)
+            return ("no reachable candidate with a positive rating from which the detector "
+                    "can find the target and the insertion site is in view "
+                    f"({self.out_of_reach} out of the arm's reach from every place the base "
+                    f"gets to, {self.undetectable} undetectable, {self.site_unseen} with the "
+                    f"site out of view, {standless} with every stand in collision){best}"
+                    f"{looked}")
         why = ", ".join(f"{k} {v}" for k, v in sorted(self.rejections.items()))
-        return f"every candidate tried was rejected ({why})"
+        return (f"every candidate tried was rejected ({why}; {self.out_of_reach} out of "
+                f"reach){best}{looked}")
 
     # ------------------------------------------------------------ the robot's belief
 
@@ -141,7 +152,8 @@ class Placement:
             "search": {"strategy": self.strategy, "candidates_evaluated": self.evaluated,
                        "refused_undetectable": self.undetectable,
                        "refused_site_out_of_view": self.site_unseen,
-                       "refused_no_place_to_stand": self.roomless},
+                       "refused_out_of_reach": self.out_of_reach,
+                       "best_out_of_reach": self.farthest, "scouting_trips": self.trips},
             "candidates_tried": self.candidates_tried, "rejections": dict(self.rejections),
             "unreachable": self.unreachable}
         if not self.placed:

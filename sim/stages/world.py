@@ -22,9 +22,10 @@ from mapping import FloorMap, OccupancyGrid, Pinhole, SensorModel
 from sim.config.scenario import Scenario
 from sim.stages.record import Recorder
 from sim.stages.timer import Timer
+from sim.world.arm import Arm, scene_arm
 from sim.world.motion import ErrorModel, Mover
 from sim.world.render import camera_pinhole
-from sim.world.scene import ARM_REACH_M, Robot, Scene, build_scene, yaw_quat
+from sim.world.scene import Robot, Scene, build_scene, yaw_quat
 
 # The joints and mocap bodies (positions, quaternions) of a world at one moment.
 State = tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -32,14 +33,14 @@ State = tuple[np.ndarray, np.ndarray, np.ndarray]
 Bodies = dict[str, tuple[np.ndarray, np.ndarray]]
 
 
-def new_floor(s: Scenario, scene: Scene) -> FloorMap:
-    """An empty floor plan at the grid's resolution over where the bases may go: each
-    robot's drive about its start, and its arm's reach beyond (room for any part of
-    a base)."""
+def new_floor(s: Scenario, scene: Scene, reach_m: float) -> FloorMap:
+    """An empty floor plan at the grid's resolution over the room the robots work in:
+    the grid's floor and where the robots start, and the arm's reach (``reach_m``)
+    beyond (a base may stand outside the grid and reach into it)."""
     starts = np.array([scene.start_qpos[r.qpos_adr[:2]] for r in scene.robots])
-    reach = s.search.drive_m + ARM_REACH_M
-    return FloorMap.from_bounds(starts.min(axis=0) - reach, starts.max(axis=0) + reach,
-                                s.grid.resolution_m)
+    lo = np.minimum(starts.min(axis=0), s.grid.bounds_min[:2]) - reach_m
+    hi = np.maximum(starts.max(axis=0), s.grid.bounds_max[:2]) + reach_m
+    return FloorMap.from_bounds(lo, hi, s.grid.resolution_m)
 
 
 def new_grid(s: Scenario) -> OccupancyGrid:
@@ -88,6 +89,7 @@ class World:
     secondary_errors: dict[str, list[float]]
     recorder: Recorder
     timer: Timer
+    arm: Arm  # the arm every robot carries, with its reach
     # where each robot that has moved believes its camera rests (4x4, MuJoCo convention)
     # and that belief's standard deviation (m, deg): its next correction starts there
     _at_rest: dict[str, tuple[np.ndarray, tuple[float, float]]] = field(default_factory=dict)
@@ -117,6 +119,12 @@ class World:
         """``robot``'s move ended with its camera believed at ``believed`` (4x4), with
         standard deviation ``sd`` (m, deg)."""
         self._at_rest[robot.name] = (believed, sd)
+
+    @property
+    def room(self) -> tuple[np.ndarray, np.ndarray]:
+        """The floor the bases may stand on: the floor plan's extent (x, y; m)."""
+        f = self.floor
+        return f.origin, f.origin + np.array(f.shape) * f.resolution
 
     def planner_maps(self, kind: str) -> dict[str, Any]:
         """The maps an ArmPlanner is given in the planner's world ``kind``
@@ -195,6 +203,7 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
     rng = np.random.default_rng(scenario.seed)
     with timer("build"):
         scene = build_scene(scenario)
+        arm = scene_arm(scene)
     model = copy.deepcopy(scene.model)
     workpiece_error = misplace_workpiece(scenario, model, rng)
     # from a stream spawned off the run's: the draws after it are the same whether or
@@ -203,11 +212,13 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
     data = scene.make_data()
     belief = scene.make_data()
     errors = ErrorModel(scenario.motion, scene.robots, rng)
-    world = World(scene, belief, model, data, new_grid(scenario), new_floor(scenario, scene),
+    world = World(scene, belief, model, data, new_grid(scenario),
+                  new_floor(scenario, scene, arm.reach_m),
                   rng, errors,
                   Mover(model, data, scene.robots, scenario.motion),
                   camera_pinhole(model, scene.robots[0].camera), workpiece_error,
-                  secondary_errors, Recorder(None, "") if recorder is None else recorder, timer)
+                  secondary_errors, Recorder(None, "") if recorder is None else recorder, timer,
+                  arm)
     world.state()  # the world's poses brought up to its model: the work-piece where it is
     return world
 

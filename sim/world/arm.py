@@ -34,6 +34,10 @@ from sim.world.scene import Robot, Scene
 # kinematics; a new cell ~30 us of MuJoCo's distance queries (the map's build time and
 # size are in docs/placement.md)
 SAMPLES = 4_000_000
+# The map is built for the left camera at the default stereo baseline (m), whatever the
+# scenario's: at another (0.2 m at most) the left camera sits up to 4 cm (a cell) to the
+# side of where the map puts it, which IK then makes up; one map serves every baseline
+MAP_BASELINE_M = 0.12
 VERSION = 1  # of the map's format and build: a change builds every arm's map anew
 _MEMO: dict[str, ReachMap] = {}  # maps loaded in this process, by key
 
@@ -63,9 +67,11 @@ def _frame(pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
     return out
 
 
-def camera_chain(model: mujoco.MjModel, robot: Robot) -> Chain:
+def camera_chain(model: mujoco.MjModel, robot: Robot, baseline_m: float | None = None
+                 ) -> Chain:
     """The chain from the robot's base (at the origin, unturned) to its left camera's
-    optical frame, through the arm's six hinges, with their limits."""
+    optical frame, through the arm's six hinges, with their limits; with ``baseline_m``,
+    the left camera as it sits on the head at that stereo baseline (m)."""
     site = model.site(robot.optical_site)
     base = model.body(robot.base_body).id
     bodies = [int(site.bodyid[0])]
@@ -87,7 +93,10 @@ def camera_chain(model: mujoco.MjModel, robot: Robot) -> Chain:
             lower.append(model.jnt_range[j, 0] if limited else -math.pi)
             upper.append(model.jnt_range[j, 1] if limited else math.pi)
             fixed = np.eye(4)
-    tip = fixed @ _frame(model.site_pos[site.id], model.site_quat[site.id])
+    at = model.site_pos[site.id].copy()
+    if baseline_m is not None:  # the head's cameras sit on its x axis, the left at -b/2
+        at[0] = -baseline_m / 2
+    tip = fixed @ _frame(at, model.site_quat[site.id])
     return Chain(np.array(offsets), np.array(axes), np.array(anchors), tip,
                  np.array(lower, float), np.array(upper, float))
 
@@ -126,10 +135,12 @@ class _SelfClear:
         return True
 
 
-def arm_key(model: mujoco.MjModel, robot: Robot, cells: ReachCells, samples: int) -> str:
+def arm_key(model: mujoco.MjModel, robot: Robot, home: np.ndarray, cells: ReachCells,
+            samples: int) -> str:
     """The arm's content as the map depends on it: its chain, the collision geometry of
-    the robot (shape, size, place in its body) and the map's cells and draws."""
-    chain = camera_chain(model, robot)
+    the robot (shape, size, place in its body), its home posture (rad) and the map's
+    cells and draws."""
+    chain = camera_chain(model, robot, MAP_BASELINE_M)
     geoms = Proximity(model, robot, ()).own
     h = hashlib.blake2b(digest_size=16)
     for part in (chain.offsets, chain.axes, chain.anchors, chain.tip, chain.lower, chain.upper,
@@ -137,6 +148,7 @@ def arm_key(model: mujoco.MjModel, robot: Robot, cells: ReachCells, samples: int
                  model.geom_quat[geoms], model.geom_bodyid[geoms] - model.geom_bodyid[geoms].min(),
                  model.body_pos[sorted(robot.body_ids)], model.body_quat[sorted(robot.body_ids)]):
         h.update(np.ascontiguousarray(np.round(part, 9)).tobytes())
+    h.update(np.round(home, 9).tobytes())
     h.update(repr((cells, samples, VERSION)).encode())
     return h.hexdigest()
 
@@ -174,15 +186,18 @@ def scene_arm(scene: Scene, samples: int = SAMPLES, cells: ReachCells | None = N
     """The scene's arm, its map from the cache or built (seeded: the same arm, the same
     map) and cached."""
     robot, cells = scene.robots[0], cells or ReachCells()
-    key = arm_key(scene.model, robot, cells, samples)
+    home = scene.start_qpos[robot.qpos_adr[3:]]
+    key = arm_key(scene.model, robot, home, cells, samples)
     built = 0.0
     if key not in _MEMO:
         path = cache_dir() / f"{key}.npz"
         reach = _load(path)
         if reach is None:
             started = time.perf_counter()
-            reach = build_reach_map(camera_chain(scene.model, robot), _SelfClear(scene, robot),
-                                    np.random.default_rng(int(key[:8], 16)), samples, cells)
+            reach = build_reach_map(camera_chain(scene.model, robot, MAP_BASELINE_M),
+                                    _SelfClear(scene, robot),
+                                    np.random.default_rng(int(key[:8], 16)), samples, cells,
+                                    home=home)
             built = time.perf_counter() - started
             _save(path, reach)
         _MEMO[key] = reach

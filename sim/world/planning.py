@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -32,36 +31,38 @@ import numpy as np
 from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
-from scipy.ndimage import label
 from scipy.spatial import cKDTree
 
-from mapping import FloorMap, OccupancyGrid
+from mapping import FloorMap, OccupancyGrid, drive_lengths
+from sim.world.arm import Arm, scene_arm
 from sim.world.base_scanner import SCAN_HEIGHT_M
 from sim.world.collision import KeepOut, Proximity
 from sim.world.ik import IKResult, IKSettings, solve_camera_pose
 from sim.world.mapped_obstacles import MapFields, left_to_map, map_fields, robot_spheres
 from sim.world.motion import dense_path
-from sim.world.scene import ARM_REACH_M, Robot, Scene
+from sim.world.scene import Robot, Scene
 
 ou.setLogLevel(ou.LOG_NONE)
 
-# The goal's IK from a stand-off seed: the base stays about where the seed put it (its
-# posture costs 100 times the arm's) and the arm reaches; the seeds search for where the
-# base stands
+# The goal's IK from a stand of the capability map: the base stays about where the seed
+# put it (its posture costs 100 times the arm's) and the arm reaches
 GOAL_IK = IKSettings(base_posture_cost=0.1)
 CHECK_STEP = 0.01  # m (base) or rad (joints): motions are checked at least this finely
-# The seeds' stand-off sides: behind the candidate as seen from the target, and turned
-# about the candidate by these angles (deg), nearest first (a check costs 0.1 ms)
-STAND_OFF_TURNS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0,
-                       -150.0, 180.0)
-# ... as far as the home posture holds its camera from its base (about 0.6 m), or this
-# much farther (m): the arm stretched over what stands in front of the candidate (a
-# table's edge), within its reach (ARM_REACH_M): from farther the arm cannot get there
-STAND_OFF_BACK_M = (0.0, 0.35)
-# At most this many clear stand-off seeds are solved from (the nearest sides first): an
-# IK solve costs 5-50 ms, and a candidate the arm cannot reach from the nearest clear
-# sides is seldom reached from the farther ones
+# At most this many stands of the capability map are solved from (the nearest drives
+# first), this far apart (m): an IK solve costs 5-50 ms, and the map's seed already
+# holds the pose to within a cell (4 cm, 10 deg), so a pose that does not converge from
+# the nearest few seldom does from farther ones (tests/test_reach.py: 97 % converge from
+# the first of a cell's seeds)
 SOLVED_SEEDS = 4
+SEED_APART_M = 0.25
+# ... and where the robot stands: the map's seeds for the pose from there (its cell's and
+# the nearest directions')
+HERE_SEEDS = 2
+# A base turns 1 rad in the time it drives this far (m): its speeds, 0.5 m/s and 1 rad/s
+BASE_M_PER_RAD = 0.5
+# How far a base may drive to a view by default (m, along its way): it may cross the
+# room it has mapped, the default grid's 3 m square walked round half its edge (6 m)
+DRIVE_M = 6.0
 STAND_CELL_M = 0.1  # the grid of places a base may stand on (m), see ArmPlanner.places
 ARM_SWING_RAD = math.pi / 2  # see ArmPlanner._bounds
 # RRT-Connect's longest step (joint space, m and rad): a tree grows in steps short
@@ -73,9 +74,10 @@ STEP_RANGE = 1.0
 @dataclass(frozen=True)
 class Plan:
     """A goal configuration and the joint path there, or why there is none: ``reason``
-    is None (it may be taken), "no place to stand" (nowhere clear for the base near
-    the candidate), "no goal configuration" (no IK solution that keeps the clearance)
-    or "no path within the budget"."""
+    is None (it may be taken), "no place to stand" (no clear place the base gets to
+    from which the arm reaches the pose), "no goal configuration" (no IK solution that
+    keeps the clearance), "no path within the budget" or "no path within the drive"
+    (the path found drives the base farther than the planner's limit)."""
 
     ik: IKResult | None  # the goal's IK solution (or the best attempt; None: none tried)
     reason: str | None
@@ -96,6 +98,49 @@ class Plan:
         return out
 
 
+@dataclass(frozen=True)
+class Places:
+    """Where a robot's base can get to: a raster of cells ``cell_m`` wide, the first's
+    centre at ``origin`` (x, y; m), each holding the shortest drive there (m; inf where
+    it cannot get, or not within the limit)."""
+
+    origin: np.ndarray
+    cell_m: float
+    drive: np.ndarray  # (nx, ny)
+    xy: np.ndarray = field(init=False)  # (n, 2) the centres of the cells it gets to
+    drive_m: np.ndarray = field(init=False)  # (n,) and the drive to each
+    tree: cKDTree = field(init=False)
+
+    def __post_init__(self) -> None:
+        cells = np.argwhere(np.isfinite(self.drive))
+        object.__setattr__(self, "xy", self.origin + cells * self.cell_m)
+        object.__setattr__(self, "drive_m", self.drive[tuple(cells.T)])
+        object.__setattr__(self, "tree", cKDTree(self.xy.reshape(-1, 2)))
+
+    def within(self, xy: np.ndarray, radius_m: float) -> np.ndarray:
+        """Indices into ``xy`` of the places within ``radius_m`` of a point (x, y; m)."""
+        return np.array(sorted(self.tree.query_ball_point(xy, radius_m)), int)
+
+    def reached(self, xy: np.ndarray) -> bool:
+        """Is the base at ``xy`` (m) on a place it gets to, or on a cell beside one (the
+        raster's resolution: between cell centres the base is as clear as at them)?"""
+        i, j = np.floor((xy - self.origin) / self.cell_m).astype(int)
+        window = self.drive[max(i, 0):i + 2, max(j, 0):j + 2]
+        return bool(np.isfinite(window).any())
+
+
+@dataclass(frozen=True)
+class Stands:
+    """Base poses from which the arm reaches one camera pose, nearest drive first: the
+    base's place (n, 2; m) and yaw (n,; rad), the arm's seed joints (n, 6; rad) and the
+    drive to each (n,; m)."""
+
+    xy: np.ndarray
+    yaw: np.ndarray
+    joints: np.ndarray
+    drive_m: np.ndarray
+
+
 class ArmPlanner:
     """Plans camera moves for the robots of ``scene``: goal by IK, path by OMPL.
 
@@ -112,23 +157,27 @@ class ArmPlanner:
     """
 
     def __init__(self, scene: Scene, belief: mujoco.MjData, clearance_m: float,
-                 ik_margin_m: float, move_base: bool = True, *, drive_m: float = 1.5,
+                 ik_margin_m: float, move_base: bool = True, *, drive_m: float = DRIVE_M,
+                 room: tuple[np.ndarray, np.ndarray] | None = None, arm: Arm | None = None,
                  checks: int = 20000, rng: np.random.Generator | None = None,
                  keep_out: KeepOut | None = None, grid: OccupancyGrid | None = None,
                  floor: FloorMap | None = None, unobserved_blocks: bool = True,
-                 places: dict[tuple[Any, ...], cKDTree] | None = None,
+                 places: dict[tuple[Any, ...], Places] | None = None,
                  settings: IKSettings = IKSettings()) -> None:
         self.scene, self.belief = scene, belief
         self.clearance_m, self.ik_margin_m = clearance_m, ik_margin_m
         self.move_base, self.settings = move_base, settings
         self.drive_m, self.checks, self.keep_out = drive_m, checks, keep_out
+        self.arm = scene_arm(scene) if arm is None else arm
+        self.room = room
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._proximity: dict[str, Proximity] = {}
         self._spheres = {r.name: robot_spheres(scene.model, r) for r in scene.robots}
         self._scratch = mujoco.MjData(scene.model)
         # clear places for each robot's base, by all they depend on (shared by planners)
-        self._standing: dict[tuple[Any, ...], cKDTree] = {} if places is None else places
-        self._depends: tuple[Any, ...] = (drive_m, clearance_m, move_base)
+        self._standing: dict[tuple[Any, ...], Places] = {} if places is None else places
+        self._depends: tuple[Any, ...] = (drive_m, clearance_m, move_base, None if room is None
+                                          else (tuple(room[0]), tuple(room[1])))
         if keep_out is not None:
             self._depends += (keep_out.centres.tobytes(), keep_out.rotations.tobytes(),
                               keep_out.halves.tobytes())
@@ -157,55 +206,97 @@ class ArmPlanner:
         """Where the robot's base started the episode (x, y; m)."""
         return self.scene.start_qpos[robot.qpos_adr[:2]]
 
-    def places(self, robot: Robot) -> cKDTree:
+    def places(self, robot: Robot) -> Places:
         """The places (x, y; m) the robot's base can get to: cells every STAND_CELL_M
-        over its drive where it is clear (its arm at home, facing any of four ways),
-        connected (side by side) to the one nearest where it stands now. Computed once
-        for what it depends on (the planner's settings and maps, the commanded
-        configuration, where the panel is), in the ``places`` the planner was given."""
+        of the room (``room``; without one, the square of the drive about where it
+        stands) where it is clear (its arm at home, facing any of four ways), that a
+        drive of at most ``drive_m`` through clear cells reaches from the cell nearest
+        where it stands now. Computed once for what it depends on (the planner's
+        settings and maps, the commanded configuration, where the panel is), in the
+        ``places`` the planner was given."""
         key = (robot.name, self.belief.qpos.tobytes(), self.belief.mocap_pos.tobytes(),
                self.belief.mocap_quat.tobytes(), *self._depends)
         if key not in self._standing:
-            home = self.scene.start_qpos[robot.qpos_adr]
-            here = self.belief.qpos[robot.qpos_adr[:2]]
-            self._scratch.qpos[:] = self.belief.qpos
-            steps = np.arange(-self.drive_m, self.drive_m + 1e-9, STAND_CELL_M)
-            x, y = np.meshgrid(steps + home[0], steps + home[1], indexing="ij")
-            inside = np.hypot(x - home[0], y - home[1]) <= self.drive_m
-            clear = np.zeros(x.shape, bool)
-            q = home.copy()
-            for i, j in zip(*np.nonzero(inside), strict=True):
-                q[:2] = x[i, j], y[i, j]
-                clear[i, j] = any(self._valid(robot, q, self.clearance_m) for q[2] in
-                                  home[2] + np.arange(4) * math.pi / 2)
-            labels, _ = label(clear)
-            keep = clear
-            if clear.any():  # the part connected to the clear cell nearest the robot
-                cells = np.column_stack([x[clear], y[clear]])
-                ij = np.argwhere(clear)[np.argmin(np.hypot(*(cells - here).T))]
-                keep = labels == labels[ij[0], ij[1]]
-            self._standing[key] = cKDTree(np.column_stack([x[keep], y[keep]]))
+            self._standing[key] = self._places(robot)
         return self._standing[key]
 
-    def standing_room(self, robot: Robot, positions: np.ndarray) -> np.ndarray:
-        """For camera positions (n, 3; m): is there a place the base can get to
-        (:meth:`places`) within the arm's reach of each? (A necessary condition, at a
-        lookup's cost: the seeds decide.)"""
+    def _places(self, robot: Robot) -> Places:
+        home = self.scene.start_qpos[robot.qpos_adr]
+        here = self.belief.qpos[robot.qpos_adr[:3]]
+        lo, hi = self.room if self.room is not None else (here[:2] - self.drive_m,
+                                                          here[:2] + self.drive_m)
+        lo = np.maximum(lo, here[:2] - self.drive_m)  # no farther than the drive
+        hi = np.minimum(hi, here[:2] + self.drive_m)
+        xs = np.arange(lo[0] + STAND_CELL_M / 2, hi[0], STAND_CELL_M)
+        ys = np.arange(lo[1] + STAND_CELL_M / 2, hi[1], STAND_CELL_M)
+        clear = np.zeros((len(xs), len(ys)), bool)
+        self._scratch.qpos[:] = self.belief.qpos
+        q = home.copy()
+        for i, j in np.ndindex(clear.shape):
+            if math.hypot(xs[i] - here[0], ys[j] - here[1]) > self.drive_m:
+                continue  # farther than any drive
+            q[:2] = xs[i], ys[j]
+            clear[i, j] = any(self._clear(robot, q, self.clearance_m) for q[2] in
+                              here[2] + np.arange(4) * math.pi / 2)
+        origin = np.array([xs[0] if len(xs) else lo[0], ys[0] if len(ys) else lo[1]])
+        drive = np.full(clear.shape, np.inf)
+        if clear.any():  # from the clear cell nearest the robot
+            cells = np.argwhere(clear)
+            start = cells[np.argmin(np.hypot(*(origin + cells * STAND_CELL_M - here[:2]).T))]
+            drive = drive_lengths(clear, (int(start[0]), int(start[1])), STAND_CELL_M,
+                                  self.drive_m)
+        return Places(origin, STAND_CELL_M, drive)
+
+    def stands(self, robot: Robot, look_at: np.ndarray, position: np.ndarray) -> Stands:
+        """Where the base can stand to put the camera at ``position`` looking at
+        ``look_at`` (m): the places it can get to (:meth:`places`) from which the arm's
+        capability map reaches the pose, the quickest to get to first (the drive and
+        the turn), with the base's yaw and the arm's joints of the map's seed (inverse
+        reachability)."""
+        places = self.places(robot)
+        direction = np.asarray(look_at, float) - position
+        direction = direction / max(float(np.linalg.norm(direction)), 1e-12)
+        near = places.within(position[:2], self.arm.reach_m)
+        ok, yaw, joints = self.arm.reach.stands(position, direction, places.xy[near])
+        near, yaw = near[ok], yaw[ok]
+        # the quickest first: the drive there and the base's turn, at the base's speeds
+        turn = np.abs(np.mod(yaw - self.belief.qpos[robot.qpos_adr[2]] + math.pi, 2 * math.pi)
+                      - math.pi)
+        order = np.argsort(places.drive_m[near] + turn * BASE_M_PER_RAD, kind="stable")
+        return Stands(places.xy[near][order], yaw[order], joints[ok][order],
+                      places.drive_m[near][order])
+
+    def may_stand(self, robot: Robot, positions: np.ndarray) -> np.ndarray:
+        """For camera positions (n, 3; m): could the arm reach each from a place the base
+        can get to, looking some way? (A necessary condition at a lookup's cost: the
+        farthest the arm reaches at the camera's height, to the nearest place.)"""
         if not self.move_base:
-            return np.ones(len(positions), bool)
-        tree = self.places(robot)
-        if tree.n == 0:
-            return np.zeros(len(positions), bool)
-        near, _ = tree.query(positions[:, :2], distance_upper_bound=ARM_REACH_M)
-        return np.isfinite(near)
+            base = self.belief.qpos[robot.qpos_adr[:2]]
+            distance = np.hypot(*(positions[:, :2] - base).T)
+        else:
+            places = self.places(robot)
+            if not len(places.xy):
+                return np.zeros(len(positions), bool)
+            distance, _ = places.tree.query(positions[:, :2])
+        return distance <= self.arm.reach.reach_at(positions[:, 2])
 
     # ------------------------------------------------------------ validity
 
     def _valid(self, robot: Robot, joints: np.ndarray, clearance_m: float) -> bool:
         """Is the robot at ``joints`` (9) clear of everything by ``clearance_m``, its own
-        links apart, and its base within its drive?"""
-        if np.hypot(*(joints[:2] - self.home(robot))) > self.drive_m + 1e-9:
+        links apart, and its base on (or beside) a place it can get to?"""
+        if self.move_base and not self.places(robot).reached(joints[:2]):
             return False
+        return self._clear(robot, joints, clearance_m)
+
+    def clear(self, robot: Robot, joints: np.ndarray) -> bool:
+        """Is the robot at ``joints`` (9) where it may be: clear by the clearance, its own
+        links apart, its base on a place it can get to?"""
+        return self._valid(robot, joints, self.clearance_m)
+
+    def _clear(self, robot: Robot, joints: np.ndarray, clearance_m: float) -> bool:
+        """Is the robot at ``joints`` (9) clear of everything by ``clearance_m``, and
+        its own links apart?"""
         d = self._scratch
         d.qpos[robot.qpos_adr] = joints
         mujoco.mj_kinematics(self.scene.model, d)
@@ -223,60 +314,59 @@ class ArmPlanner:
     # ------------------------------------------------------------ goal
 
     def _seeds(self, robot: Robot, start: np.ndarray, look_at: np.ndarray,
-               position: np.ndarray) -> list[np.ndarray]:
-        """Configurations to start the goal's IK from: the arm in its home posture
-        (compact, as the robot starts the episode), the base standing off behind the
-        candidate (as far as the home posture holds the camera from the base, or
-        STAND_OFF_BACK_M farther), facing the target, from each side in
-        STAND_OFF_TURNS_DEG; then the present configuration."""
-        seeds = []
+               position: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Configurations to start the goal's IK from: the base standing elsewhere, and
+        the base where it stands (tried first: the least move). With the base moving: the
+        stands of the capability map (:meth:`stands`), the quickest first, at most
+        SOLVED_SEEDS that are clear and SEED_APART_M apart, each the base there, turned
+        as the map says, and the arm at the map's seed; with the camera within the arm's
+        reach of where the base stands, the map's seeds for the base where it is, and the
+        present configuration."""
+        seeds: list[np.ndarray] = []
+        here: list[np.ndarray] = []
         if self.move_base:
-            home = self.scene.start_qpos
-            q = home[robot.qpos_adr]
-            self._scratch.qpos[:] = start
-            self._scratch.qpos[robot.qpos_adr] = q
-            mujoco.mj_kinematics(self.scene.model, self._scratch)
-            camera = self._scratch.site(robot.optical_site).xpos
-            offset = float(np.hypot(*(camera[:2] - q[:2])))  # base to camera, horizontal
-            bearing = math.atan2(camera[1] - q[1], camera[0] - q[0]) - q[2]  # in the base
-            facing = math.atan2(*(look_at[1::-1] - position[1::-1]))  # candidate to target
-            for turn, back in itertools.product(STAND_OFF_TURNS_DEG, STAND_OFF_BACK_M):
-                yaw = facing + math.radians(turn)
+            stands = self.stands(robot, look_at, position)
+            taken: list[np.ndarray] = []
+            for xy, yaw, joints in zip(stands.xy, stands.yaw, stands.joints, strict=True):
+                if len(seeds) >= SOLVED_SEEDS:
+                    break
+                if any(np.hypot(*(xy - t)) < SEED_APART_M for t in taken):
+                    continue
                 seed = start.copy()
-                seed[robot.qpos_adr] = q
-                seed[robot.qpos_adr[:2]] = position[:2] - (offset + back) * np.array(
-                    [math.cos(yaw), math.sin(yaw)])
-                # turned so that the camera lies ahead of the base as at home
-                seed[robot.qpos_adr[2]] = _near_angle(yaw - bearing, start[robot.qpos_adr[2]])
-                seeds.append(seed)
-        seeds.append(start.copy())
-        return seeds
+                seed[robot.qpos_adr] = (*xy, _near_angle(float(yaw), start[robot.qpos_adr[2]]),
+                                        *joints)
+                if self._valid(robot, seed[robot.qpos_adr], self.clearance_m):
+                    seeds.append(seed)
+                    taken.append(xy)
+        base = start[robot.qpos_adr[:3]]
+        c, s = math.cos(base[2]), math.sin(base[2])
+        to_base = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # world to base
+        local = to_base @ (position - np.array([*base[:2], 0.0]))
+        if not self.move_base or np.hypot(*local[:2]) <= self.arm.reach_m:
+            direction = np.asarray(look_at, float) - position
+            direction /= max(float(np.linalg.norm(direction)), 1e-12)
+            joints, _ = self.arm.reach.seeds(local, to_base @ direction, HERE_SEEDS)
+            for arm in joints:
+                seed = start.copy()
+                seed[robot.qpos_adr[3:]] = arm
+                here.append(seed)
+            here.append(start.copy())
+        return seeds, here
 
     def goal(self, robot: Robot, start: np.ndarray, look_at: np.ndarray,
              position: np.ndarray) -> tuple[IKResult | None, str | None]:
         """The first IK solution that keeps ``ik_margin_m`` (the clearance and a margin
-        for the move's positioning errors) and the drive limit, from the first
-        SOLVED_SEEDS stand-off seeds that are clear and where the robot stands, and None;
-        else the best attempt and why: "no goal configuration", or "no place to stand"
-        when no stand-off seed is clear and the candidate is beyond the arm's reach of
-        where the robot stands (no IK is tried then; a base that does not move always
-        tries)."""
+        for the move's positioning errors) and the base on a place it can get to, from
+        the seeds (:meth:`_seeds`: where the base stands, its base free to move, then
+        elsewhere, its base held about there), and None; else the best attempt and why: "no goal
+        configuration", or "no place to stand" when no place the base can get to puts
+        the pose within the arm's reach (no IK is tried then)."""
         best: IKResult | None = None
-        *stand_offs, here = self._seeds(robot, start, look_at, position)
-        if stand_offs:  # only where the base can get to: near a place it reaches
-            near, _ = self.places(robot).query(
-                np.array([s[robot.qpos_adr[:2]] for s in stand_offs]),
-                distance_upper_bound=STAND_CELL_M)
-            stand_offs = [s for s, d in zip(stand_offs, near, strict=True) if np.isfinite(d)]
-        seeds = [s for s in stand_offs
-                 if self._valid(robot, s[robot.qpos_adr], self.clearance_m)][:SOLVED_SEEDS]
-        base = start[robot.qpos_adr[:2]]
-        if not self.move_base or np.hypot(*(position[:2] - base)) <= ARM_REACH_M:
-            seeds.append(here)  # where it stands, it is clear (or as clear as it can be)
-        if not seeds:
+        elsewhere, here = self._seeds(robot, start, look_at, position)
+        if not elsewhere and not here:
             return None, "no place to stand"
-        for seed in seeds:
-            settings = self.settings if seed is here else GOAL_IK
+        for seed, settings in [*((s, self.settings) for s in here),
+                               *((s, GOAL_IK) for s in elsewhere)]:
             ik = solve_camera_pose(self.scene.model, seed, robot, look_at, position,
                                    self.move_base, settings)
             if ik.converged and self._valid(robot, ik.qpos[robot.qpos_adr], self.ik_margin_m):
@@ -411,11 +501,44 @@ class ArmPlanner:
         ik = dataclasses.replace(ik, qpos=goal)
         path, checks = self.path(robot, start[robot.qpos_adr], goal[robot.qpos_adr])
         self._scratch.qpos[:] = start
-        if path is None:
-            return Plan(ik, "no path within the budget", checks=checks,
-                        seconds=time.perf_counter() - started)
+        why = self._refused(path)
+        if path is None or why is not None:
+            return Plan(ik, why, checks=checks, seconds=time.perf_counter() - started)
         self.scene.set_robot(self.belief, robot, ik.qpos)
         return Plan(ik, None, path, checks, time.perf_counter() - started)
+
+    def _refused(self, path: np.ndarray | None) -> str | None:
+        """Why a path found (or None) may not be taken: none found within the budget,
+        or its base drives farther than ``drive_m`` (and a cell: the goal lies within
+        one of a place the base gets to)."""
+        if path is None:
+            return "no path within the budget"
+        drive = float(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1).sum())
+        if drive > self.drive_m + STAND_CELL_M:
+            return "no path within the drive"
+        return None
+
+    def drive_to(self, robot: Robot, xy: np.ndarray) -> Plan:
+        """A plan that drives the base to ``xy`` (m), its arm tucked at home, turned as
+        it stands or by quarter turns as the place needs (no IK: a base's goal is its
+        joints)."""
+        started = time.perf_counter()
+        start = self.belief.qpos[robot.qpos_adr].copy()
+        home = self._nearest_turns(robot, self.scene.start_qpos[robot.qpos_adr], start)
+        for turn in np.arange(4) * math.pi / 2:
+            goal = np.array([*xy, start[2] + turn, *home[3:]])
+            if self._valid(robot, goal, self.clearance_m):
+                break
+        else:
+            return Plan(None, "no place to stand", seconds=time.perf_counter() - started)
+        path, checks = self.path(robot, start, goal)
+        why = self._refused(path)
+        if path is None or why is not None:
+            return Plan(None, why, checks=checks, seconds=time.perf_counter() - started)
+        full = self.belief.qpos.copy()
+        full[robot.qpos_adr] = goal
+        self.scene.set_robot(self.belief, robot, full)
+        return Plan(None, None, path, checks, time.perf_counter() - started)
 
     def _nearest_turns(self, robot: Robot, joints: np.ndarray, near: np.ndarray) -> np.ndarray:
         """``joints`` (9) with each turning joint (the yaw, the arm's) moved by whole
