@@ -13,7 +13,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def machine() -> dict[str, Any]:
-    versions = {}
+    versions: dict[str, str | None] = {}
     for package in ("mujoco", "numpy", "numba", "octomap-python"):
         try:
             versions[package] = metadata.version(package)

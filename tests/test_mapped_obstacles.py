@@ -15,6 +15,7 @@ from test_planning import CLEARANCE_M, GOAL, WALL_HALF_Y, scene_with
 from mapping import FloorMap, ObstacleField
 from mapping.floor_map import FREE, OCCUPIED, UNSCANNED
 from sim.stages.world import new_floor, new_grid
+from sim.world.arm import scene_arm
 from sim.world.base_scanner import SCAN_HEIGHT_M, scan_into
 from sim.world.mapped_obstacles import covering_spheres, inside_geom
 from sim.world.planning import ArmPlanner
@@ -80,7 +81,7 @@ def test_the_scanner_sees_free_floor_up_to_an_obstacle_and_not_behind_it():
     is free from the robot to its face, occupied at its face, never scanned behind it."""
     scene = scene_with([{"shape": "box", "position": [-1.3, 0.0, 0.4], "size": [0.1, 0.3, 0.4]}])
     data = scene.make_data()
-    floor = new_floor(scene.scenario, scene)
+    floor = new_floor(scene.scenario, scene, scene_arm(scene).reach_m)
     scan_into(floor, scene.model, data, data, scene.robots, scene.robot_geoms())
 
     def at(x: float, y: float) -> int:
@@ -105,7 +106,7 @@ def mapped(scene, occupied_boxes: list[tuple[np.ndarray, np.ndarray]],
         inside = np.all(np.abs(centres - c) <= h + grid.resolution / 2, axis=-1)
         grid.set_probability(0.9, inside)
     data = scene.make_data()
-    floor = new_floor(scene.scenario, scene)
+    floor = new_floor(scene.scenario, scene, scene_arm(scene).reach_m)
     robot = scene.robots[0]
     for xy in ((None, None), *scanned_from):
         if xy[0] is not None:

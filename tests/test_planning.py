@@ -102,7 +102,7 @@ def test_an_enclosed_goal_is_reported_unreachable_with_the_reason():
     assert len(plan.path) == 0 and plan.ik is None  # refused before any IK
     assert np.array_equal(p.belief.qpos, before)  # the commanded configuration stays
     # the places the base can get to are all outside the pen
-    places = p.places(robot).data
+    places = p.places(robot).xy
     assert len(places) > 0 and np.all(np.abs(places).max(axis=1) > half)
 
 
@@ -117,20 +117,22 @@ def test_a_path_not_found_within_the_budget_says_so():
 
 
 @pytest.mark.parametrize("goal", [np.array([-0.4, 0.0, 3.0])])
-def test_a_goal_out_of_reach_has_no_goal_configuration(goal):
+def test_a_goal_out_of_the_arms_reach_is_refused_before_any_ik(goal):
     scene = wall_scene()
-    plan = planner(scene).plan(scene.robots[0], scene.primary.position, goal)
-    assert plan.reason == "no goal configuration" and not plan.ik.converged
-    assert plan.ik.position_error_m > 1.0
+    p = planner(scene)
+    assert goal[2] > p.arm.reach.cells.z_low + p.arm.reach.cells.n_z * p.arm.reach.cells.z_step
+    plan = p.plan(scene.robots[0], scene.primary.position, goal)
+    assert plan.reason == "no place to stand" and plan.ik is None
 
 
-def test_the_retired_reach_key_names_its_successor(tmp_path):
+@pytest.mark.parametrize("key", ["reach_m", "drive_m"])
+def test_the_retired_drive_keys_name_their_successor(tmp_path, key):
     path = tmp_path / "s.toml"
-    path.write_text("[search]\nreach_m = 1.0\n")
+    path.write_text(f"[search]\n{key} = 1.0\n")
     with pytest.raises(ScenarioError) as caught:
         load_scenario(path)
     text = str(caught.value)
-    assert "search.reach_m" in text and "search.drive_m" in text and "\n" not in text
+    assert f"search.{key}" in text and "search.drive_path_m" in text and "\n" not in text
 
 
 def test_travel_weighing_prefers_what_the_base_drives_less_to():
@@ -140,7 +142,7 @@ def test_travel_weighing_prefers_what_the_base_drives_less_to():
                                 np.array([1.0, 0.9, 0.5])), np.zeros(3, int))
     assert list(field.ranked()) == [0, 1, 2]  # by rating alone
     # drives beyond the arm's 1 m: 2.0, 0.5, 0 m; at 1/m: 0.135, 0.546, 0.5
-    weighed = travel_weighed(field, np.zeros(2), 1.0)
+    weighed = travel_weighed(field, np.zeros(2), 1.0, reach_m=1.0)
     assert list(weighed.ranked()) == [1, 2, 0]
     assert np.array_equal(weighed.ratings.total, field.ratings.total)  # terms unchanged
 

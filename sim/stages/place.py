@@ -37,7 +37,7 @@ from sim.stages.exploration import gain_model
 from sim.stages.move import move
 from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import RatingProblem, target_model
-from sim.stages.scout import scout
+from sim.stages.scout import look_along, scout
 from sim.stages.world import World
 from sim.world.base_scanner import scan_into
 from sim.world.collision import KeepOut, blocked_rays, robot_points
@@ -56,6 +56,9 @@ MAX_STANDLESS = 500
 # seconds, or a failed search for a path there, 2 s; three let it look round a wall
 # and again from nearer)
 SCOUT_TRIPS = 3
+# Where a robot looks along a way held back by space never observed: points of it at
+# least this far apart (m; a view 1 m off covers a metre across at the default 60 deg)
+LOOK_APART_M = 0.5
 
 
 def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
@@ -224,6 +227,25 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         rejected.append(position)
         with world.timer("ik"):
             plan = planner.plan(robot, model.position, position)
+        if plan.reason is not None and scouting and sensor is not None \
+                and scouted < SCOUT_TRIPS:
+            # held back, perhaps, by space never observed: if the way would be there were
+            # it free, look where the arm would pass, and plan again
+            with world.timer("ik"):
+                hopeful = hopeful or _planner(world, corridor, "map_seen")
+                hoped = hopeful.plan(robot, model.position, position)
+                world.scene.set_robot(belief, robot, start)
+            if hoped.reason is None and hoped.ik is not None:
+                scouted += 1
+                points = np.vstack([hopeful.camera_path(robot, hoped.path),
+                                    hopeful.arm_points(robot, hoped.ik.qpos)])
+                trip = look_along(world, robot, spread(points, LOOK_APART_M), position,
+                                  hopeful, sensor)
+                if trip is not None:
+                    trips.append(trip)
+                    planner, hopeful = _planner(world, corridor, q.planner_world), None
+                    with world.timer("ik"):
+                        plan = planner.plan(robot, model.position, position)
         why = plan.reason
         if why == "no place to stand":
             tried -= 1
@@ -269,6 +291,15 @@ def _planner(world: World, corridor: KeepOut | None, kind: str) -> ArmPlanner:
                       drive_m=q.drive_path_m, room=world.room, arm=world.arm,
                       checks=q.planning_checks, rng=world.rng, keep_out=corridor,
                       places=world.places, **world.planner_maps(kind))
+
+
+def spread(points: np.ndarray, apart_m: float) -> np.ndarray:
+    """The points (n, 3; m) in order, each kept if at least ``apart_m`` from those kept."""
+    kept: list[np.ndarray] = []
+    for p in points:
+        if all(np.linalg.norm(p - k) >= apart_m for k in kept):
+            kept.append(p)
+    return np.array(kept).reshape(-1, 3)
 
 
 def _out_of_reach(ranked: RatingField, i: int) -> dict[str, Any]:

@@ -2,9 +2,10 @@
 space the robots never observed looks at that space, and drives nearer to look again,
 before the planner is asked once more (plan to the frontier, look, plan again).
 
-A look turns the robot's camera (its arm alone, by gaze IK, to a configuration the
-planner holds clear) at a point and integrates the depth it measures into the map, as
-mapping does; the arm goes back where it was. A drive takes the base, arm tucked, to the
+A look turns the robot's camera (its arm alone, by gaze IK) at a point and integrates
+the depth it measures into the map, as mapping does; the arm goes back where it was. The
+turn is held clear of the known geometry and of what the maps saw occupied, not of the
+space never observed: that is what the camera, turning towards it, looks at. A drive takes the base, arm tucked, to the
 place it can get to nearest the stand it hopes for (a stand of the capability map on
 space not yet observed), scanning the floor as it goes. The planner in the robots' map
 then sees what the looks found: free space opens the way, an obstacle closes it.
@@ -38,9 +39,10 @@ STAND_LOOK_Z_M = 0.9
 
 def look(world: World, robot: Robot, point: np.ndarray, planner: ArmPlanner,
          sensor: DepthSensor) -> bool:
-    """Turn ``robot``'s camera at ``point`` (m) by its arm alone, if a clear
-    configuration does, measure depth and integrate it into the map where the robot
-    believes its camera is; the arm is left where it was. Whether it looked."""
+    """Turn ``robot``'s camera at ``point`` (m) by its arm alone, if a configuration
+    ``planner`` holds clear does (the planner with the space never observed taken as
+    free), measure depth and integrate it into the map where the robot believes its
+    camera is; the arm is left where it was. Whether it looked."""
     s, belief, data = world.scenario, world.belief, world.data
     ik = solve_camera_pose(world.nominal, belief.qpos, robot, point, None, move_base=False)
     if not ik.converged or not planner.clear(robot, ik.qpos[robot.qpos_adr]):
@@ -73,7 +75,7 @@ def scout(world: World, robot: Robot, hoped: np.ndarray,
     stand = np.array([*hoped, STAND_LOOK_Z_M])
     unknown_before = _unknown(world)
     planner = planner_in("map")
-    looks = _looks(world, robot, (stand, position), planner, sensor)
+    looks = _looks(world, robot, (stand, position), planner_in("map_seen"), sensor)
     drive = None
     if looks:
         planner = planner_in("map")
@@ -89,12 +91,25 @@ def scout(world: World, robot: Robot, hoped: np.ndarray,
             scan_into(world.floor, world.model, world.data, world.belief, [robot],
                       world.scene.robot_geoms())
             drive = {"to": nearest.round(3).tolist(), "path": plan.summary()}
-            looks += _looks(world, robot, (stand, position), planner_in("map"), sensor)
+            looks += _looks(world, robot, (stand, position), planner_in("map_seen"), sensor)
     seen = unknown_before - _unknown(world)
     if drive is None and not looks:
         return None
     return {"for": position.round(3).tolist(), "stand": hoped.round(3).tolist(),
             "looks": looks, "drive": drive, "observed": seen}
+
+
+def look_along(world: World, robot: Robot, points: np.ndarray, position: np.ndarray,
+               planner: ArmPlanner, sensor: DepthSensor) -> dict[str, Any] | None:
+    """Look where the arm would be at a goal the robots' map holds back only by space
+    never observed (``points``: the arm's links there, m) for the camera at ``position``
+    (m); what was done, or None if no look could be taken."""
+    unknown_before = _unknown(world)
+    looks = _looks(world, robot, tuple(points), planner, sensor)
+    if not looks:
+        return None
+    return {"for": position.round(3).tolist(), "stand": None, "looks": looks, "drive": None,
+            "observed": unknown_before - _unknown(world)}
 
 
 def _looks(world: World, robot: Robot, points: tuple[np.ndarray, ...], planner: ArmPlanner,

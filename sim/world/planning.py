@@ -463,7 +463,7 @@ class ArmPlanner:
         if not setup.haveExactSolutionPath():
             return None
         found = setup.getSolutionPath()
-        setup.getPathSimplifier().reduceVertices(found)  # OMPL's shortcutting of waypoints
+        setup.getPathSimplifier().simplifyMax(found)  # OMPL's shortcutting, as short as it gets
         return np.array([joints_of(found.getState(k)) for k in range(found.getStateCount())])
 
     def _bounds(self, robot: Robot, start: np.ndarray, goal: np.ndarray
@@ -556,6 +556,19 @@ class ArmPlanner:
             if len(turns):
                 out[k] = turns[np.argmin(np.abs(turns - near[k]))]
         return out
+
+    def arm_points(self, robot: Robot, qpos: np.ndarray) -> np.ndarray:
+        """Where the robot's arm is at the configuration ``qpos`` (full; m): its elbow's
+        and its wrist's bodies, the links between the shoulder and the head that pass
+        through the space round the camera's view."""
+        d = self._scratch
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(self.scene.model, d)
+        m = self.scene.model
+        ids = [int(m.jnt_bodyid[m.jnt_qposadr.tolist().index(a)]) for a in robot.qpos_adr[5:7]]
+        points = d.xpos[ids].copy()
+        d.qpos[:] = self.belief.qpos
+        return points
 
     def camera_path(self, robot: Robot, path: np.ndarray) -> np.ndarray:
         """Where the robot's camera goes along a joint path (n, 3; m), densely."""
