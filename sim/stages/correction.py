@@ -45,7 +45,6 @@ import numpy as np
 
 from calibration.pose import PoseEstimate, rotation_deg
 from sim.config.scenario import MotionConfig
-from sim.world.scene import ARM_REACH_M
 
 # The accuracy a trusted correction holds: the pose-correction benchmark's located moves
 # are all within it (bench/pose_correction.py at c726ff8: at most 2.8 mm and 0.14 deg off
@@ -68,7 +67,7 @@ RMS_TO_95 = math.sqrt(7.8147 / 3)
 BUNDLE_SD_SCALE = (3.13 / RMS_TO_95, 1.80 / RMS_TO_95)
 
 
-def prior_pose_sd(cfg: MotionConfig, reach_m: float = ARM_REACH_M) -> tuple[float, float]:
+def prior_pose_sd(cfg: MotionConfig, reach_m: float) -> tuple[float, float]:
     """Standard deviation of an uncorrected camera pose, position (m) and rotation (deg),
     from the positioning errors' standard deviations, to first order: the base's x and y,
     and every rotation (base yaw, mount roll and pitch, six joints' offset and noise)

@@ -81,7 +81,7 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
     targets = task_targets(world, secondary)
     # beyond the map and the other robots, the panel the task will hang over the slot
     extra = [panel_over_slot(world)] if s.task.enabled else []
-    prior_sd = prior_pose_sd(s.motion)  # of a camera pose not corrected
+    prior_sd = prior_pose_sd(s.motion, world.arm.reach_m)  # of a camera pose not corrected
     corrector = None
     if s.correction.enabled:
         corrector = PoseCorrector(world.scene, world.belief, world.data, renderer, world.pinhole,

@@ -152,7 +152,8 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     if ranked is None:
         ranked = ranked_field(world, problem, robot, targets, taken, method, extra)
     world.recorder.candidates(robot.name, ranked.ratings.positions, ranked.ratings.total)
-    counts: dict[str, Any] = {"strategy": ranked.strategy, "evaluated": ranked.evaluated}
+    counts: dict[str, Any] = {"strategy": ranked.strategy, "evaluated": ranked.evaluated,
+                              "rated": len(ranked.ranked()), "reach_m": world.arm.reach_m}
     tried = undetectable = out_of_frame = 0
     rejections: dict[str, int] = defaultdict(int)
     unreachable: list[dict[str, Any]] = []
@@ -209,7 +210,8 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                     scouted += 1
                     trip = scout(world, robot, wanted.xy[0],
                                  lambda kind: _planner(world, corridor, kind),
-                                 model.position, position, prior_sd, sensor)
+                                 model.position, position, prior_sd, sensor,
+                                 drive=step is None)
                     if trip is not None:
                         trips.append(trip)
                         planner, hopeful = _planner(world, corridor, q.planner_world), None

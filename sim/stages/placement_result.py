@@ -22,7 +22,7 @@ from sim.stages.task_result import Camera
 from sim.world.ik import IKResult
 from sim.world.motion import MotionResult
 from sim.world.planning import Plan
-from sim.world.scene import ARM_REACH_M, Robot
+from sim.world.scene import Robot
 
 
 def pose_dict(T: np.ndarray) -> dict[str, list[float]]:
@@ -75,13 +75,15 @@ class Placement:
     plan: Plan | None = None  # the goal and the path there
     strategy: str = "exhaustive"
     evaluated: int = 0  # candidates the search rated
+    rated: int = 0  # of them, with a positive rating (or ordered by the method)
     candidates_tried: int = 0  # of them, tried with IK
     undetectable: int = 0  # candidates skipped: the detector could not find the target
     # ... and those that would not hold the insertion site in focus and in frame
     site_unseen: int = 0
     out_of_reach: int = 0  # ... and those the arm reaches from no place the base gets to
     farthest: dict[str, Any] | None = None  # the best of those: rating, position, height
-    trips: list[dict[str, Any]] = field(default_factory=list)  # drives to look at the floor
+    trips: list[dict[str, Any]] = field(default_factory=list)  # looks and drives to see more
+    reach_m: float = 1.0  # the arm's reach (m): a rotation's error swings the camera there
     rejections: dict[str, int] = field(default_factory=dict)  # by why
     unreachable: list[dict[str, Any]] = field(default_factory=list)  # why, first few
 
@@ -95,6 +97,9 @@ class Placement:
             return ""
         if self.evaluated == 0:
             return "no known-free candidate in the robot's region"
+        if self.rated == 0:
+            return (f"no candidate with a positive rating among the {self.evaluated} "
+                    "known-free ones in the robot's region")
         best = ""
         if self.farthest is not None:
             f = self.farthest
@@ -139,7 +144,7 @@ class Placement:
         arm's reach (m) and status; ``prior`` is an uncorrected pose's (m, deg)."""
         position_sd, rotation_sd = self.believed_sd(prior)
         return Camera(self.robot, self.believed_pose(),
-                      math.hypot(position_sd, ARM_REACH_M * math.radians(rotation_sd)),
+                      math.hypot(position_sd, self.reach_m * math.radians(rotation_sd)),
                       self.pose_status, math.radians(rotation_sd))
 
     # ------------------------------------------------------------ the record
@@ -150,6 +155,7 @@ class Placement:
             "index": self.index, "step": self.step, "reason": self.reason,
             "placed": self.placed,
             "search": {"strategy": self.strategy, "candidates_evaluated": self.evaluated,
+                       "candidates_rated": self.rated,
                        "refused_undetectable": self.undetectable,
                        "refused_site_out_of_view": self.site_unseen,
                        "refused_out_of_reach": self.out_of_reach,

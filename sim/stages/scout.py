@@ -5,10 +5,11 @@ before the planner is asked once more (plan to the frontier, look, plan again).
 A look turns the robot's camera (its arm alone, by gaze IK) at a point and integrates
 the depth it measures into the map, as mapping does; the arm goes back where it was. The
 turn is held clear of the known geometry and of what the maps saw occupied, not of the
-space never observed: that is what the camera, turning towards it, looks at. A drive takes the base, arm tucked, to the
-place it can get to nearest the stand it hopes for (a stand of the capability map on
-space not yet observed), scanning the floor as it goes. The planner in the robots' map
-then sees what the looks found: free space opens the way, an obstacle closes it.
+space never observed: that is what the camera, turning towards it, looks at. A drive
+takes the base, arm tucked, to the place it can get to nearest the stand it hopes for
+(a stand of the capability map on space not yet observed), and its scanner sweeps the
+floor there. The planner in the robots' map then sees what the looks found: free space
+opens the way, an obstacle closes it.
 """
 
 from __future__ import annotations
@@ -64,7 +65,8 @@ def look(world: World, robot: Robot, point: np.ndarray, planner: ArmPlanner,
 
 def scout(world: World, robot: Robot, hoped: np.ndarray,
           planner_in: Callable[[str], ArmPlanner], look_at: np.ndarray, position: np.ndarray,
-          prior_sd: tuple[float, float], sensor: DepthSensor | None) -> dict[str, Any] | None:
+          prior_sd: tuple[float, float], sensor: DepthSensor | None, drive: bool = True
+          ) -> dict[str, Any] | None:
     """One trip for a camera at ``position`` looking at ``look_at`` (m) that the planner
     in the robots' map finds no stand for, but would from ``hoped`` (x, y; m) if the
     space never observed were free (``planner_in``: the planner in a world, "map" or
@@ -76,10 +78,10 @@ def scout(world: World, robot: Robot, hoped: np.ndarray,
     unknown_before = _unknown(world)
     planner = planner_in("map")
     looks = _looks(world, robot, (stand, position), planner_in("map_seen"), sensor)
-    drive = None
+    driven = None
     if looks:
         planner = planner_in("map")
-    if not len(planner.stands(robot, look_at, position).xy):
+    if drive and not len(planner.stands(robot, look_at, position).xy):
         with world.timer("ik"):
             places = planner.places(robot)
             nearest = places.xy[int(np.argmin(np.hypot(*(places.xy - hoped).T)))]
@@ -90,13 +92,13 @@ def scout(world: World, robot: Robot, hoped: np.ndarray,
             move(world, robot, plan.path, None, prior_sd)
             scan_into(world.floor, world.model, world.data, world.belief, [robot],
                       world.scene.robot_geoms())
-            drive = {"to": nearest.round(3).tolist(), "path": plan.summary()}
+            driven = {"to": nearest.round(3).tolist(), "path": plan.summary()}
             looks += _looks(world, robot, (stand, position), planner_in("map_seen"), sensor)
     seen = unknown_before - _unknown(world)
-    if drive is None and not looks:
+    if driven is None and not looks:
         return None
     return {"for": position.round(3).tolist(), "stand": hoped.round(3).tolist(),
-            "looks": looks, "drive": drive, "observed": seen}
+            "looks": looks, "drive": driven, "observed": seen}
 
 
 def look_along(world: World, robot: Robot, points: np.ndarray, position: np.ndarray,

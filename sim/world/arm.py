@@ -18,6 +18,7 @@ import math
 import os
 import tempfile
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,7 +102,7 @@ def camera_chain(model: mujoco.MjModel, robot: Robot, baseline_m: float | None =
                  np.array(lower, float), np.array(upper, float))
 
 
-class _SelfClear:
+class SelfClear:
     """Is the robot, its base at the origin and its arm at given angles, clear of itself
     (its links apart, as the planner keeps them) and of the floor (its arm and head)?"""
 
@@ -167,7 +168,7 @@ def _load(path: Path) -> ReachMap | None:
         with np.load(path) as f:
             cells = ReachCells(**json.loads(str(f["cells"])))
             return ReachMap(cells, f["keys"], f["joints"], f["bearings"], int(f["samples"]))
-    except (OSError, KeyError, ValueError):
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return None  # missing, or cut short: built again
 
 
@@ -195,7 +196,7 @@ def scene_arm(scene: Scene, samples: int = SAMPLES, cells: ReachCells | None = N
         if reach is None:
             started = time.perf_counter()
             reach = build_reach_map(camera_chain(scene.model, robot, MAP_BASELINE_M),
-                                    _SelfClear(scene, robot),
+                                    SelfClear(scene, robot),
                                     np.random.default_rng(int(key[:8], 16)), samples, cells,
                                     home=home)
             built = time.perf_counter() - started

@@ -24,10 +24,6 @@ ROBOT_JOINTS = (
     "shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3",
 )
 BASE_JOINTS = ROBOT_JOINTS[:3]
-# How far (m, horizontal) the arm holds its camera from the base's pivot at most: the
-# UR5e's reach (0.85 m) and the camera's mount; the pose prior's lever and where
-# planning looks for a place to stand
-ARM_REACH_M = 1.0
 HOLE_LIFT = 0.0005  # m: a hole's dark face lies this far above the plate (no z-fighting)
 # Maximum joint speeds (m/s, rad/s): UR5e arm joints 180 deg/s; a slow mobile base.
 JOINT_SPEEDS = dict.fromkeys(ROBOT_JOINTS[3:], math.pi) | {
