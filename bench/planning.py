@@ -17,7 +17,7 @@ from where mapping left the robot, by both planners, in the same nominal world w
 the same clearance; a candidate is reached when the planner returns a path (the
 planner's paths are clear by construction; IK-as-path's path is checked at 1 cm /
 0.01 rad as before). Both are given the same candidates, from the same region
-(``search.drive_m`` plus the arm's reach). ``--world`` sets the planner's world
+(``search.drive_path_m`` and the arm's reach). ``--world`` sets the planner's world
 (``search.planner_world``: Table 1's "model" by default; "map" plans around what the
 robots mapped, never-observed space blocked), IK-as-path's being the scene as it is.
 
@@ -108,14 +108,15 @@ def scene_rows(spec: Any, top: int, world_kind: str) -> list[dict[str, Any]]:
     q = scenario.search
     margin = q.clearance_m + scenario.motion.ik_margin_m
     planner = ArmPlanner(world.scene, world.belief, q.clearance_m, margin, True,
-                         drive_m=q.drive_m, checks=q.planning_checks, rng=world.rng,
+                         drive_m=q.drive_path_m, room=world.room, arm=world.arm,
+                         checks=q.planning_checks, rng=world.rng,
                          **world.planner_maps(world_kind))
     start = world.belief.qpos.copy()
     rows: list[dict[str, Any]] = []
     tried: list[np.ndarray] = []
     order = ranked.ranked()
-    room = planner.standing_room(robot, ranked.ratings.positions[order])
-    for i in order[room]:  # as placement: nowhere to stand within reach, not tried
+    room = planner.may_stand(robot, ranked.ratings.positions[order])
+    for i in order[room]:  # as placement: out of the arm's reach, not tried
         if sum(r["why"] != "no place to stand" for r in rows) >= top or len(rows) >= (
                 MAX_STANDLESS + top):
             break

@@ -37,7 +37,7 @@ from sim.stages.exploration import gain_model
 from sim.stages.move import move
 from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import RatingProblem, target_model
-from sim.stages.scout import look_along, scout
+from sim.stages.scout import Scouting
 from sim.stages.world import World
 from sim.world.base_scanner import scan_into
 from sim.world.collision import KeepOut, blocked_rays, robot_points
@@ -51,14 +51,6 @@ REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to
 # few validity checks (about 1 ms) and do not count as tried; at most this many are
 # passed over, so that a ring of clutter cannot keep the search going forever
 MAX_STANDLESS = 500
-# A robot whose arm would reach a candidate only from space never observed goes to look
-# at most this many times a placement (a trip: a look or two and a drive of a few
-# seconds, or a failed search for a path there, 2 s; three let it look round a wall
-# and again from nearer)
-SCOUT_TRIPS = 3
-# Where a robot looks along a way held back by space never observed: points of it at
-# least this far apart (m; a view 1 m off covers a metre across at the default 60 deg)
-LOOK_APART_M = 0.5
 
 
 def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
@@ -145,8 +137,8 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     REJECTED_RADIUS_M of a position in ``avoid`` (m) are skipped as a failed one's are;
     ``ranked``: the candidates :func:`ranked_field` gives for these arguments, if the
     caller has them already. In the robots' map, a candidate the arm would reach only
-    from space never observed sends the robot scouting (sim/stages/scout.py), at most
-    SCOUT_TRIPS times; with a depth ``sensor`` it looks as well as scans."""
+    through space never observed sends the robot scouting (sim/stages/scout.py); with a
+    depth ``sensor`` it looks as well as scans."""
     s, belief = world.scenario, world.belief
     q = s.search
     if ranked is None:
@@ -164,16 +156,16 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     corners = None if corridor is None or method != "rating" else site_corners(corridor)
     # the bases scan the floor where they stand; the planner knows the clutter as mapped
     # (or, as an oracle, as it is: the scans are then not needed)
-    scouting = q.planner_world != "model" and s.robots.move_base
     if q.planner_world != "model":
         scan_into(world.floor, world.model, world.data, belief, world.scene.robots,
                   world.scene.robot_geoms())
     planner = _planner(world, corridor, q.planner_world)
+    # in the robots' map, what was never observed is looked at when it holds them back
+    scouting = Scouting(world, robot, lambda kind: _planner(world, corridor, kind), prior_sd,
+                        sensor, on=q.planner_world != "model" and s.robots.move_base,
+                        drive=step is None)
     rejected = [np.asarray(p, float) for p in avoid]
     standless = 0  # candidates whose every stand was in collision: cheap, not counted
-    trips: list[dict[str, Any]] = []  # looks and drives at space never observed
-    scouted = 0  # trips begun
-    hopeful: ArmPlanner | None = None  # the planner with the never-observed taken as free
     out_of_reach = 0  # candidates the arm reaches from no place the base gets to
     farthest: dict[str, Any] | None = None  # the best of them
     order = ranked.ranked()
@@ -200,24 +192,7 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
             out_of_frame += 1  # the insertion it is to measure would not be in focus and
             continue  # in frame
         if s.robots.move_base:
-            with world.timer("ik"):
-                reachable = len(planner.stands(robot, model.position, position).xy) > 0
-            if not reachable and scouting and scouted < SCOUT_TRIPS:
-                with world.timer("ik"):
-                    hopeful = hopeful or _planner(world, corridor, "map_seen")
-                    wanted = hopeful.stands(robot, model.position, position)
-                if len(wanted.xy):  # from space never observed the arm might reach it
-                    scouted += 1
-                    trip = scout(world, robot, wanted.xy[0],
-                                 lambda kind: _planner(world, corridor, kind),
-                                 model.position, position, prior_sd, sensor,
-                                 drive=step is None)
-                    if trip is not None:
-                        trips.append(trip)
-                        planner, hopeful = _planner(world, corridor, q.planner_world), None
-                        with world.timer("ik"):
-                            reachable = len(planner.stands(robot, model.position,
-                                                           position).xy) > 0
+            planner, reachable = scouting.stands(planner, model.position, position)
             if not reachable:
                 out_of_reach += 1  # from no place the base gets to does the arm reach it
                 if farthest is None or ranked.ratings.total[i] > farthest["rating"]:
@@ -229,25 +204,8 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         rejected.append(position)
         with world.timer("ik"):
             plan = planner.plan(robot, model.position, position)
-        if plan.reason is not None and scouting and sensor is not None \
-                and scouted < SCOUT_TRIPS:
-            # held back, perhaps, by space never observed: if the way would be there were
-            # it free, look where the arm would pass, and plan again
-            with world.timer("ik"):
-                hopeful = hopeful or _planner(world, corridor, "map_seen")
-                hoped = hopeful.plan(robot, model.position, position)
-                world.scene.set_robot(belief, robot, start)
-            if hoped.reason is None and hoped.ik is not None:
-                scouted += 1
-                points = np.vstack([hopeful.camera_path(robot, hoped.path),
-                                    hopeful.arm_points(robot, hoped.ik.qpos)])
-                trip = look_along(world, robot, spread(points, LOOK_APART_M), position,
-                                  hopeful, sensor)
-                if trip is not None:
-                    trips.append(trip)
-                    planner, hopeful = _planner(world, corridor, q.planner_world), None
-                    with world.timer("ik"):
-                        plan = planner.plan(robot, model.position, position)
+        if plan.reason is not None:
+            planner, plan = scouting.plan(planner, plan, model.position, position, start)
         why = plan.reason
         if why == "no place to stand":
             tried -= 1
@@ -275,11 +233,11 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                          camera_pose(world.data, robot.camera), ranked.ratings.terms(int(i)),
                          plan.ik, motion, correction, plan=plan, candidates_tried=tried,
                          undetectable=undetectable, site_unseen=out_of_frame,
-                         out_of_reach=out_of_reach, farthest=farthest, trips=trips,
+                         out_of_reach=out_of_reach, farthest=farthest, trips=scouting.trips,
                          rejections=dict(rejections), unreachable=unreachable, **counts)
     return Placement(robot, index, step, reason, candidates_tried=tried,
                      undetectable=undetectable, site_unseen=out_of_frame,
-                     out_of_reach=out_of_reach, farthest=farthest, trips=trips,
+                     out_of_reach=out_of_reach, farthest=farthest, trips=scouting.trips,
                      rejections=dict(rejections), unreachable=unreachable, **counts)
 
 
@@ -293,15 +251,6 @@ def _planner(world: World, corridor: KeepOut | None, kind: str) -> ArmPlanner:
                       drive_m=q.drive_path_m, room=world.room, arm=world.arm,
                       checks=q.planning_checks, rng=world.rng, keep_out=corridor,
                       places=world.places, **world.planner_maps(kind))
-
-
-def spread(points: np.ndarray, apart_m: float) -> np.ndarray:
-    """The points (n, 3; m) in order, each kept if at least ``apart_m`` from those kept."""
-    kept: list[np.ndarray] = []
-    for p in points:
-        if all(np.linalg.norm(p - k) >= apart_m for k in kept):
-            kept.append(p)
-    return np.array(kept).reshape(-1, 3)
 
 
 def _out_of_reach(ranked: RatingField, i: int) -> dict[str, Any]:

@@ -25,11 +25,20 @@ from sim.stages.move import move
 from sim.stages.world import World
 from sim.world.base_scanner import scan_into
 from sim.world.ik import solve_camera_pose
-from sim.world.planning import ArmPlanner
+from sim.world.planning import ArmPlanner, Plan
 from sim.world.render import camera_pose
 from sim.world.scene import Robot
 from sim.world.sensing import DepthSensor
 
+# A robot goes to look at most this many times a placement (a trip: a look or two and a
+# drive of a few seconds; three let it look round a wall and again from nearer) ...
+TRIPS = 3
+# ... and asks at most this many times whether space never observed holds it back (a
+# question is a plan in the map with that space free: up to a path search's budget)
+QUESTIONS = 6
+# Where a robot looks along a way held back by space never observed: points of it at
+# least this far apart (m; a view 1 m off covers a metre across at the default 60 deg)
+LOOK_APART_M = 0.5
 # A drive is taken when the place nearest the hoped-for stand is farther than this (m:
 # two floor cells); nearer, only looks help
 STEP_M = 0.2
@@ -76,11 +85,9 @@ def scout(world: World, robot: Robot, hoped: np.ndarray,
     could be done."""
     stand = np.array([*hoped, STAND_LOOK_Z_M])
     unknown_before = _unknown(world)
-    planner = planner_in("map")
     looks = _looks(world, robot, (stand, position), planner_in("map_seen"), sensor)
+    planner = planner_in("map")  # as the looks left the map
     driven = None
-    if looks:
-        planner = planner_in("map")
     if drive and not len(planner.stands(robot, look_at, position).xy):
         with world.timer("ik"):
             places = planner.places(robot)
@@ -127,3 +134,91 @@ def _unknown(world: World) -> int:
     """Cells never observed: the map's voxels and the floor plan's cells."""
     return int(np.count_nonzero(world.grid.states() == 0)
                + np.count_nonzero(world.floor.state == UNSCANNED))
+
+
+def spread(points: np.ndarray, apart_m: float) -> np.ndarray:
+    """The points (n, 3; m) in order, each kept if at least ``apart_m`` from those kept."""
+    kept: list[np.ndarray] = []
+    for p in points:
+        if all(np.linalg.norm(p - k) >= apart_m for k in kept):
+            kept.append(p)
+    return np.array(kept).reshape(-1, 3)
+
+
+class Scouting:
+    """One placement's scouting: when the planner in the robots' map (``planner_in``:
+    the planner in a world, "map" or "map_seen", as the maps now are) finds no stand or
+    no plan for a candidate that the same map with the space never observed taken as
+    free would give, the robot looks (with a ``sensor``) and, if it may ``drive``,
+    drives nearer; at most TRIPS trips and QUESTIONS questions, none unless ``on``. The
+    trips taken are in ``trips``."""
+
+    def __init__(self, world: World, robot: Robot, planner_in: Callable[[str], ArmPlanner],
+                 prior_sd: tuple[float, float], sensor: DepthSensor | None, *, on: bool,
+                 drive: bool) -> None:
+        self.world, self.robot, self.planner_in = world, robot, planner_in
+        self.prior_sd, self.sensor, self.on, self.drive = prior_sd, sensor, on, drive
+        self.trips: list[dict[str, Any]] = []
+        self.asked = 0
+        self._hopeful: ArmPlanner | None = None
+
+    def _may_ask(self) -> bool:
+        return self.on and len(self.trips) < TRIPS and self.asked < QUESTIONS
+
+    def _hopeful_planner(self) -> ArmPlanner:
+        self.asked += 1
+        if self._hopeful is None:
+            self._hopeful = self.planner_in("map_seen")
+        return self._hopeful
+
+    def _taken(self, trip: dict[str, Any] | None) -> bool:
+        """Keep a trip; the maps changed, so the hopeful planner is made again."""
+        if trip is None:
+            return False
+        self.trips.append(trip)
+        self._hopeful = None
+        return True
+
+    def stands(self, planner: ArmPlanner, look_at: np.ndarray, position: np.ndarray
+               ) -> tuple[ArmPlanner, bool]:
+        """The planner to go on with, and whether it finds a stand for the camera at
+        ``position`` looking at ``look_at`` (m), after a trip if one helps."""
+        world, robot = self.world, self.robot
+        with world.timer("ik"):
+            if len(planner.stands(robot, look_at, position).xy):
+                return planner, True
+            if not self._may_ask():
+                return planner, False
+            wanted = self._hopeful_planner().stands(robot, look_at, position)
+        if not len(wanted.xy) or not self._taken(scout(
+                world, robot, wanted.xy[0], self.planner_in, look_at, position, self.prior_sd,
+                self.sensor, drive=self.drive)):
+            return planner, False
+        planner = self.planner_in("map")
+        with world.timer("ik"):
+            return planner, len(planner.stands(robot, look_at, position).xy) > 0
+
+    def plan(self, planner: ArmPlanner, refused: Plan, look_at: np.ndarray,
+             position: np.ndarray, start: np.ndarray) -> tuple[ArmPlanner, Plan]:
+        """After ``planner`` ``refused`` the camera at ``position`` looking at
+        ``look_at`` (m), the robot at ``start`` (its full configuration): if the map with
+        the space never observed free would give a plan, look where the arm would pass
+        (its camera's way, its elbow and wrist at the goal) and plan again. The planner
+        and the plan to go on with."""
+        world, robot = self.world, self.robot
+        if not self._may_ask() or self.sensor is None:
+            return planner, refused
+        with world.timer("ik"):
+            hopeful = self._hopeful_planner()
+            hoped = hopeful.plan(robot, look_at, position)
+            world.scene.set_robot(world.belief, robot, start)  # a plan leaves it at its goal
+        if hoped.reason is not None or hoped.ik is None:
+            return planner, refused
+        points = np.vstack([hopeful.camera_path(robot, hoped.path),
+                            hopeful.arm_points(robot, hoped.ik.qpos)])
+        if not self._taken(look_along(world, robot, spread(points, LOOK_APART_M), position,
+                                      hopeful, self.sensor)):
+            return planner, refused
+        planner = self.planner_in("map")
+        with world.timer("ik"):
+            return planner, planner.plan(robot, look_at, position)
