@@ -58,6 +58,9 @@ SEED_APART_M = 0.25
 # ... and where the robot stands: the map's seeds for the pose from there (its cell's and
 # the nearest directions')
 HERE_SEEDS = 2
+# Stands are taken side by side round the camera, behind it (as seen from the target)
+# first, in sides this wide (deg): the sides a stand-off from behind turns through
+STAND_SIDE_DEG = 30.0
 # A base turns 1 rad in the time it drives this far (m): its speeds, 0.5 m/s and 1 rad/s
 BASE_M_PER_RAD = 0.5
 # How far a base may drive to a view by default (m, along its way): it may cross the
@@ -202,10 +205,6 @@ class ArmPlanner:
                                                     skip=self.unmapped)
         return self._proximity[robot.name]
 
-    def home(self, robot: Robot) -> np.ndarray:
-        """Where the robot's base started the episode (x, y; m)."""
-        return self.scene.start_qpos[robot.qpos_adr[:2]]
-
     def places(self, robot: Robot) -> Places:
         """The places (x, y; m) the robot's base can get to: cells every STAND_CELL_M
         of the room (``room``; without one, the square of the drive about where it
@@ -250,19 +249,26 @@ class ArmPlanner:
     def stands(self, robot: Robot, look_at: np.ndarray, position: np.ndarray) -> Stands:
         """Where the base can stand to put the camera at ``position`` looking at
         ``look_at`` (m): the places it can get to (:meth:`places`) from which the arm's
-        capability map reaches the pose, the quickest to get to first (the drive and
-        the turn), with the base's yaw and the arm's joints of the map's seed (inverse
-        reachability)."""
+        capability map reaches the pose, behind the camera first, then the quickest to
+        get to (the drive and the turn), with the base's yaw and the arm's joints of the
+        map's seed (inverse reachability)."""
         places = self.places(robot)
         direction = np.asarray(look_at, float) - position
         direction = direction / max(float(np.linalg.norm(direction)), 1e-12)
         near = places.within(position[:2], self.arm.reach_m)
         ok, yaw, joints = self.arm.reach.stands(position, direction, places.xy[near])
         near, yaw = near[ok], yaw[ok]
-        # the quickest first: the drive there and the base's turn, at the base's speeds
+        # behind the camera as seen from the target first, the arm out of the views (its
+        # own and the others': the task's panel comes from the target's side), by sides
+        # STAND_SIDE_DEG wide; on each side the quickest first: the drive and the base's
+        # turn, at the base's speeds
+        back = np.arctan2(*(position[1::-1] - np.asarray(look_at, float)[1::-1]))
+        side = np.arctan2(places.xy[near, 1] - position[1], places.xy[near, 0] - position[0])
+        off = np.abs(np.mod(side - back + math.pi, 2 * math.pi) - math.pi)
         turn = np.abs(np.mod(yaw - self.belief.qpos[robot.qpos_adr[2]] + math.pi, 2 * math.pi)
                       - math.pi)
-        order = np.argsort(places.drive_m[near] + turn * BASE_M_PER_RAD, kind="stable")
+        order = np.lexsort((places.drive_m[near] + turn * BASE_M_PER_RAD,
+                            np.round(np.degrees(off) / STAND_SIDE_DEG)))
         return Stands(places.xy[near][order], yaw[order], joints[ok][order],
                       places.drive_m[near][order])
 
@@ -468,15 +474,16 @@ class ArmPlanner:
 
     def _bounds(self, robot: Robot, start: np.ndarray, goal: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
-        """The joint space searched (9 each): the base's drive square, a quarter turn
-        beyond where its yaw starts and ends, the arm's joints ARM_SWING_RAD beyond
-        where they start and end (within their ranges)."""
+        """The joint space searched (9 each): the box round the places the base can get
+        to (a cell beyond), a quarter turn beyond where its yaw starts and ends, the arm's
+        joints ARM_SWING_RAD beyond where they start and end (within their ranges)."""
         m = self.scene.model
         q0, q1 = start, goal
         ids = [m.jnt_qposadr.tolist().index(a) for a in robot.qpos_adr]
         lo, hi = m.jnt_range[ids, 0].copy(), m.jnt_range[ids, 1].copy()
-        home = self.home(robot)
-        lo[:2], hi[:2] = home - self.drive_m, home + self.drive_m
+        xy = self.places(robot).xy if self.move_base else np.zeros((0, 2))
+        xy = np.vstack([xy, q0[None, :2]])
+        lo[:2], hi[:2] = xy.min(axis=0) - STAND_CELL_M, xy.max(axis=0) + STAND_CELL_M
         lo[2] = min(q0[2], q1[2]) - math.pi / 2
         hi[2] = max(q0[2], q1[2]) + math.pi / 2
         # the arm's joints within a quarter turn beyond where they start and end: a
