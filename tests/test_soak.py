@@ -197,7 +197,10 @@ def kinds(found: set[tuple[str, str | None, str]]) -> set[str]:
 def test_the_run_it_edits_passes(run_dir: Path) -> None:
     audit = audit_run(run_dir)
     assert not audit.findings
-    assert audit.counts["sightings_checked"] == 4 and audit.counts["seen_checked"] == 2
+    # every sighting and every robot's look was checked
+    robots = json.loads((run_dir / "summary.json").read_text())["robots"]
+    assert audit.counts["sightings_checked"] == sum(len(r["sightings"]) for r in robots) >= 2
+    assert audit.counts["seen_checked"] == 2
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])

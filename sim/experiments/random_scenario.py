@@ -229,7 +229,7 @@ def draw_scenario(rng: np.random.Generator, name: str, heavy: bool = False,
                    "ik_candidates": int(rng.integers(5, 21)),
                    "robot_separation_m": rounded(rng.uniform(0.3, 0.6)),
                    "camera_z_m": [rounded(low), rounded(rng.uniform(1.2, 1.6))],
-                   "drive_m": rounded(rng.uniform(0.0, 2.0))}
+                   "drive_path_m": rounded(rng.uniform(0.0, 2.0))}
 
     motion: dict[str, Any] = {"settle_s": rounded(rng.uniform(0.2, 0.8), 3),
                               "speed_scale": rounded(rng.uniform(0.5, 1.0), 3)}
