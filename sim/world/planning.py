@@ -321,13 +321,13 @@ class ArmPlanner:
 
     def _seeds(self, robot: Robot, start: np.ndarray, look_at: np.ndarray,
                position: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """Configurations to start the goal's IK from: the base standing elsewhere (tried
-        first: behind the camera, the arm out of the views), and the base where it
-        stands. With the base moving: the stands of the capability map (:meth:`stands`),
-        at most SOLVED_SEEDS that are clear and SEED_APART_M apart, each the base there,
-        turned as the map says, and the arm at the map's seed; with the camera within
-        the arm's reach of where the base stands, the map's seeds for the base where it
-        is, and the present configuration."""
+        """Configurations to start the goal's IK from: the base standing elsewhere, and
+        the base where it stands (tried first: the least move). With the base moving: the
+        stands of the capability map (:meth:`stands`), the quickest first, at most
+        SOLVED_SEEDS that are clear and SEED_APART_M apart, each the base there, turned
+        as the map says, and the arm at the map's seed; with the camera within the arm's
+        reach of where the base stands, the map's seeds for the base where it is, and the
+        present configuration."""
         seeds: list[np.ndarray] = []
         here: list[np.ndarray] = []
         if self.move_base:
@@ -363,16 +363,16 @@ class ArmPlanner:
              position: np.ndarray) -> tuple[IKResult | None, str | None]:
         """The first IK solution that keeps ``ik_margin_m`` (the clearance and a margin
         for the move's positioning errors) and the base on a place it can get to, from
-        the seeds (:meth:`_seeds`: the stands, the base held about there, then where
-        the base stands, the base free to move), and None; else the best attempt and why: "no goal
+        the seeds (:meth:`_seeds`: where the base stands, its base free to move, then
+        elsewhere, its base held about there), and None; else the best attempt and why: "no goal
         configuration", or "no place to stand" when no place the base can get to puts
         the pose within the arm's reach (no IK is tried then)."""
         best: IKResult | None = None
         elsewhere, here = self._seeds(robot, start, look_at, position)
         if not elsewhere and not here:
             return None, "no place to stand"
-        for seed, settings in [*((s, GOAL_IK) for s in elsewhere),
-                               *((s, self.settings) for s in here)]:
+        for seed, settings in [*((s, self.settings) for s in here),
+                               *((s, GOAL_IK) for s in elsewhere)]:
             ik = solve_camera_pose(self.scene.model, seed, robot, look_at, position,
                                    self.move_base, settings)
             if ik.converged and self._valid(robot, ik.qpos[robot.qpos_adr], self.ik_margin_m):
