@@ -39,3 +39,25 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         peer = "-" if r["peer"] is None else f"{r['peer']:.4g}"
         ratio = "-" if r["ratio"] is None else f"{r['ratio']:.3g}"
         print(f"{r['case']:<44} {ours:>14} {peer:>14} {ratio:>8}  {r['unit']}")
+
+
+def done_records(path: Path) -> dict[int, dict[str, Any]]:
+    """The scenes finished in a scenes.jsonl, the last record of each (a line cut short
+    by a kill is ignored): what a resumed run skips."""
+    records: dict[int, dict[str, Any]] = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                record = json.loads(line)
+            except ValueError:
+                continue
+            records[int(record["index"])] = record
+    return records
+
+
+def append(path: Path, record: dict[str, Any]) -> None:
+    """One finished scene's record, on disk at once (a kill loses nothing finished)."""
+    with path.open("a") as fh:
+        fh.write(json.dumps(record) + "\n")
+        fh.flush()
+        os.fsync(fh.fileno())

@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import os
 import re
 import statistics
 import sys
@@ -49,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import print_table, write_results
+from common import append, done_records, print_table, write_results
 
 import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
 from sim.world.gl import resolve_gl_backend
@@ -305,27 +304,6 @@ def summarise(records: list[dict[str, Any]], seed: int) -> tuple[list[dict[str, 
 
 
 # ---------------------------------------------------------------- the command
-
-
-def done_records(path: Path) -> dict[int, dict[str, Any]]:
-    """The scenes finished in a scenes.jsonl, the last record of each (a line cut short
-    by a kill is ignored)."""
-    records: dict[int, dict[str, Any]] = {}
-    if path.exists():
-        for line in path.read_text().splitlines():
-            try:
-                record = json.loads(line)
-            except ValueError:
-                continue
-            records[int(record["index"])] = record
-    return records
-
-
-def append(path: Path, record: dict[str, Any]) -> None:
-    with path.open("a") as fh:
-        fh.write(json.dumps(record) + "\n")
-        fh.flush()
-        os.fsync(fh.fileno())
 
 
 def write_robots(path: Path, records: list[dict[str, Any]]) -> None:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import sys
 import time
@@ -24,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import RESULTS, machine
+from common import RESULTS, append, done_records, machine
 
 import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
 from sim.world.gl import resolve_gl_backend
@@ -36,26 +35,6 @@ from sim.experiments.soak import run_scenes, tally
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "soak.md"
 BEGIN, END = "<!-- soak table: written by bench/soak.py -->", "<!-- end of soak table -->"
-
-
-def done_records(path: Path) -> dict[int, dict[str, Any]]:
-    """The scenes finished in a scenes.jsonl (a line cut short by a kill is ignored)."""
-    records: dict[int, dict[str, Any]] = {}
-    if path.exists():
-        for line in path.read_text().splitlines():
-            try:
-                record = json.loads(line)
-            except ValueError:
-                continue
-            records[int(record["index"])] = record
-    return records
-
-
-def append(path: Path, record: dict[str, Any]) -> None:
-    with path.open("a") as fh:
-        fh.write(json.dumps(record) + "\n")
-        fh.flush()
-        os.fsync(fh.fileno())
 
 
 def table(result: dict[str, Any], command: str) -> str:
