@@ -89,6 +89,26 @@ def _targets(rng: np.random.Generator) -> tuple[list[dict[str, Any]], list[str]]
     return chosen, [f"targets{len(chosen)}"]
 
 
+def draw_yaw(rng: np.random.Generator, angle: float) -> float:
+    """A base's heading (deg) at ``angle`` (rad) round the work-piece: facing it, give or
+    take 25 deg, or (one in five) any way."""
+    facing = math.degrees(angle + math.pi)
+    yaw = (float(rng.uniform(-180, 180)) if rng.random() < 0.2
+           else facing + float(rng.normal(0, 25)))
+    return math.degrees(math.remainder(math.radians(yaw), 2 * math.pi))
+
+
+def base_clear(x: float, y: float, frame: Frame, solids: list[Solid],
+               panel: tuple[float, float], bases: list[dict[str, Any]]) -> bool:
+    """Whether a robot at (x, y) (m) keeps clear of the table, the obstacles below its
+    head, the panel and the other ``bases``."""
+    return (not over_table(frame, Solid(x, y, (ROBOT_RADIUS, ROBOT_RADIUS), 0.0, 0.0, HEAD_Z,
+                                        True), margin=0.1)
+            and all(s.distance(x, y) > ROBOT_RADIUS + 0.05 for s in solids if s.bottom < HEAD_Z)
+            and math.hypot(x - panel[0], y - panel[1]) > ROBOT_RADIUS + PANEL_RADIUS + 0.1
+            and all(math.hypot(x - b["x"], y - b["y"]) > 2 * ROBOT_RADIUS + 0.05 for b in bases))
+
+
 def _bases(rng: np.random.Generator, frame: Frame, count: int, solids: list[Solid],
            panel: tuple[float, float], tight: bool) -> list[dict[str, Any]]:
     """Start poses near (1.1-1.3 m), mid (1.3-1.9 m) and far (1.9-2.6 m) from the
@@ -104,18 +124,8 @@ def _bases(rng: np.random.Generator, frame: Frame, count: int, solids: list[Soli
                                              rng.uniform(1.9, 2.6)], p=[0.25, 0.5, 0.25]))
             angle = float(rng.uniform(0, 2 * math.pi))
             x, y = frame.x + distance * math.cos(angle), frame.y + distance * math.sin(angle)
-            facing = math.degrees(angle + math.pi)
-            yaw = (float(rng.uniform(-180, 180)) if rng.random() < 0.2
-                   else facing + float(rng.normal(0, 25)))
-            yaw = math.degrees(math.remainder(math.radians(yaw), 2 * math.pi))
-            clear = (tight and i == 0) or (
-                not over_table(frame, Solid(x, y, (ROBOT_RADIUS, ROBOT_RADIUS), 0.0, 0.0,
-                                              HEAD_Z, True), margin=0.1)
-                and all(s.distance(x, y) > ROBOT_RADIUS + 0.05 for s in solids
-                        if s.bottom < HEAD_Z)
-                and math.hypot(x - panel[0], y - panel[1]) > ROBOT_RADIUS + PANEL_RADIUS + 0.1
-                and all(math.hypot(x - b["x"], y - b["y"]) > 2 * ROBOT_RADIUS + 0.05
-                        for b in bases))
+            yaw = draw_yaw(rng, angle)
+            clear = (tight and i == 0) or base_clear(x, y, frame, solids, panel, bases)
             if clear:
                 bases.append({"x": rounded(x), "y": rounded(y), "yaw_deg": rounded(yaw, 2)})
                 break

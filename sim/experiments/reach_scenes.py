@@ -44,7 +44,12 @@ from sim.experiments.random_obstacles import (
     over_table,
     rounded,
 )
-from sim.experiments.random_scenario import HEAD_Z, ROBOT_RADIUS, draw_scenario
+from sim.experiments.random_scenario import (
+    ROBOT_RADIUS,
+    base_clear,
+    draw_scenario,
+    draw_yaw,
+)
 
 COMPACT_ARM = Path(__file__).resolve().parents[2] / "models" / "arms" / "compact_arm.xml"
 UR5E = "menagerie:universal_robots_ur5e"
@@ -162,22 +167,11 @@ def _panel_outside(rng: np.random.Generator, frame: Frame, margin: float,
     return frame.world(float(rng.uniform(-0.25, 0.25)), sign * (hy + margin + out))
 
 
-def _base_clear(x: float, y: float, frame: Frame, solids: list[Solid],
-                panel: tuple[float, float], bases: list[dict[str, Any]]) -> bool:
-    """Whether a robot at (x, y) (m) keeps clear of the table, the obstacles below its
-    head, the panel and the other bases (the soak's margins)."""
-    return (not over_table(frame, Solid(x, y, (ROBOT_RADIUS, ROBOT_RADIUS), 0.0, 0.0, HEAD_Z,
-                                        True), margin=0.1)
-            and all(s.distance(x, y) > ROBOT_RADIUS + 0.05 for s in solids if s.bottom < HEAD_Z)
-            and math.hypot(x - panel[0], y - panel[1]) > ROBOT_RADIUS + PANEL_RADIUS + 0.1
-            and all(math.hypot(x - b["x"], y - b["y"]) > 2 * ROBOT_RADIUS + 0.05 for b in bases))
-
-
 def _bases(rng: np.random.Generator, frame: Frame, count: int, solids: list[Solid],
            panel: tuple[float, float]) -> list[dict[str, Any]]:
     """Start poses: each far (FAR_M) with FAR_SHARE, else near (1.1-1.3 m) or mid
     (1.3-1.9 m) as the soak's; facing the work-piece roughly, or at any yaw; clear of
-    everything (:func:`_base_clear`). A robot with no clear place in 400 tries is left
+    everything (:func:`base_clear`). A robot with no clear place in 400 tries is left
     out."""
     bases: list[dict[str, Any]] = []
     for _ in range(count):
@@ -190,11 +184,8 @@ def _bases(rng: np.random.Generator, frame: Frame, count: int, solids: list[Soli
                                  else rng.uniform(1.3, 1.9))
             angle = float(rng.uniform(0, 2 * math.pi))
             x, y = frame.x + distance * math.cos(angle), frame.y + distance * math.sin(angle)
-            facing = math.degrees(angle + math.pi)
-            yaw = (float(rng.uniform(-180, 180)) if rng.random() < 0.2
-                   else facing + float(rng.normal(0, 25)))
-            yaw = math.degrees(math.remainder(math.radians(yaw), 2 * math.pi))
-            if _base_clear(x, y, frame, solids, panel, bases):
+            yaw = draw_yaw(rng, angle)
+            if base_clear(x, y, frame, solids, panel, bases):
                 bases.append({"x": rounded(x), "y": rounded(y), "yaw_deg": rounded(yaw, 2)})
                 break
     return bases
