@@ -87,6 +87,7 @@ bootstrap resamples of the 48 pairs). Both are asserted.
 
 from __future__ import annotations
 
+import json
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -96,6 +97,7 @@ from scipy.stats import binomtest, wilcoxon
 
 from sim.cli import main
 from sim.config.scenario import SCENARIO_DIR
+from sim.config.sweep import load_sweep
 from sim.experiments.results import Results
 
 pytestmark = pytest.mark.slow  # the regression sweep: about ten minutes on 2 cores
@@ -104,16 +106,40 @@ TRIALS = 24  # paired scenes per density (scenarios/regression.toml)
 
 
 @pytest.fixture(scope="module")
-def outcomes(tmp_path_factory) -> dict[tuple[str, int, float], list[bool]]:
-    """Success per (method, density index, tolerance), trial by trial."""
+def swept(tmp_path_factory) -> Path:
+    """The reduced table's results database."""
     db = tmp_path_factory.mktemp("regression") / "regression.sqlite"
     assert main(["sweep", str(SCENARIO_DIR / "regression.toml"), "--db", str(db),
                  "--workers", "2"]) == 0
+    return db
+
+
+@pytest.fixture(scope="module")
+def outcomes(swept) -> dict[tuple[str, int, float], list[bool]]:
+    """Success per (method, density index, tolerance), trial by trial."""
     out: dict[tuple[str, int, float], list[bool]] = defaultdict(list)
-    with Results(Path(db)) as r:
+    with Results(swept) as r:
         for d, _trial, method, tol, ok in r.rows("successes"):
             out[(method, d, tol)].append(bool(ok))
     return out
+
+
+def test_the_reduced_table_plans_in_the_robots_map():
+    assert load_sweep(SCENARIO_DIR / "regression.toml").scenario.search.planner_world == "map"
+    assert load_sweep(SCENARIO_DIR / "regression_hard.toml").scenario.search.planner_world == "map"
+
+
+def test_optimal_placement_places_as_many_robots_as_random_at_every_density(swept):
+    """Planning in the robots' map, the rating function's views are no harder to get
+    to than biased random's: it ranks only views the arm reaches from the floor its
+    base gets to."""
+    placed: dict[tuple[str, int], int] = defaultdict(int)
+    with Results(swept) as r:
+        for d, *_, record in r.rows("trials"):
+            for m in json.loads(record)["methods"]:
+                placed[(m["method"], d)] += sum(bool(x["placed"]) for x in m["robots"])
+    for d in range(3):
+        assert placed[("optimal", d)] >= placed[("random", d)], dict(placed)
 
 
 def rate(outcomes, method: str, density: int, tol: float) -> float:

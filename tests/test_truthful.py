@@ -306,7 +306,7 @@ def test_secondary_targets_stand_in_for_a_hidden_slot():
         mapped = world.snapshot()
         outcomes = {}
         for secondary in (True, False):
-            run = world.restored(mapped, np.random.default_rng(7))
+            run = world.restored(mapped, np.random.default_rng(7), np.random.default_rng(8))
             outcomes[secondary] = place_look_do(
                 run, renderer, RatingProblem(run.grid, run.scenario), "rating", secondary)
     used = outcomes[True]

@@ -64,6 +64,12 @@ def method_rng(seed: int, method: MethodConfig) -> np.random.Generator:
     return np.random.default_rng([seed, 1, zlib.crc32(method.name.encode())])
 
 
+def task_rng(seed: int) -> np.random.Generator:
+    """The task's noise in a trial: one stream every method starts afresh from (common
+    random numbers), so that paired methods differ by their placement alone."""
+    return np.random.default_rng([seed, 2])
+
+
 def _outcome(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str, Any],
              task: dict[str, Any] | None, seconds: float) -> dict[str, Any]:
     task = task or {}
@@ -125,7 +131,7 @@ def _run_trial(spec: TrialSpec) -> dict[str, Any]:
         problem = RatingProblem(world.grid, scenario)  # the methods' searches share it
         for method in spec.methods:
             began = time.perf_counter()
-            run = world.restored(mapped, method_rng(spec.seed, method))
+            run = world.restored(mapped, method_rng(spec.seed, method), task_rng(spec.seed))
             outcome = place_look_do(run, renderer, problem, method.placement, method.secondary)
             outcomes.append(_outcome(method, outcome.robots(run), outcome.frame, outcome.task,
                                      time.perf_counter() - began))

@@ -67,7 +67,7 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
     cameras = [p.camera(prior_sd) for p in at.values() if p.placed]
     lens = Lens(s.camera.near_m, s.camera.far_m, s.camera.coc_px)
     task = InsertionTask(world.scene, world.model, world.data, renderer, world.pinhole,
-                         s.camera.baseline_m, lens, world.grid, s.task, world.rng,
+                         s.camera.baseline_m, lens, world.grid, s.task, world.task_rng,
                          world.recorder)
 
     def done(result: TaskResult) -> Insertion:

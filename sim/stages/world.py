@@ -3,8 +3,12 @@
 The nominal model (the scene as built) and the belief data (the commanded joints) are
 what planning sees; the simulated model (the work-piece misplaced by the scenario's
 errors) and its data hold the truth, which only physics and the evaluation read. The
-occupancy grid is the robots' map; the one generator, seeded by the scenario, draws
-every random number of the run, in the order the stages ask for them.
+occupancy grid is the robots' map. One generator, seeded by the scenario, draws every
+random number of the run in the order the stages ask for them, but for the task's noise
+(the panel's carry and steps), which has its own stream: what placement draws (IK
+restarts, path samples, candidates) leaves the task's noise as it was, and paired
+methods in a trial share it (common random numbers), so they differ by their
+placement alone.
 """
 
 from __future__ import annotations
@@ -81,6 +85,7 @@ class World:
     floor: FloorMap  # the bases' scanners' floor plan
     rng: np.random.Generator
     errors: ErrorModel  # each move's positioning error, drawn from ``rng``
+    task_rng: np.random.Generator  # the task's noise: its own stream (module docstring)
     mover: Mover
     pinhole: Pinhole  # of every robot's cameras
     workpiece_error: np.ndarray  # (dx, dy, dyaw) in m, m, rad
@@ -176,10 +181,11 @@ class World:
         return Snapshot(d.qpos.copy(), d.ctrl.copy(), d.mocap_pos.copy(), d.mocap_quat.copy(),
                         float(d.time), copy.deepcopy(self.grid), copy.deepcopy(self.floor))
 
-    def restored(self, snap: Snapshot, rng: np.random.Generator) -> World:
+    def restored(self, snap: Snapshot, rng: np.random.Generator,
+                 task_rng: np.random.Generator) -> World:
         """This world back at ``snap``, at rest, drawing from ``rng`` from now on (the
-        robots' calibration errors are drawn afresh from it); the maps are copies of the
-        snapshot's."""
+        robots' calibration errors are drawn afresh from it) and the task's noise from
+        ``task_rng``; the maps are copies of the snapshot's."""
         d = self.data
         d.qpos[:], d.ctrl[:], d.time = snap.qpos, snap.ctrl, snap.time
         d.mocap_pos[:], d.mocap_quat[:] = snap.mocap_pos, snap.mocap_quat
@@ -192,6 +198,7 @@ class World:
         return replace(self, grid=copy.deepcopy(snap.grid), floor=copy.deepcopy(snap.floor),
                        rng=rng,
                        errors=ErrorModel(self.scenario.motion, self.scene.robots, rng),
+                       task_rng=task_rng,
                        _at_rest={})
 
 
@@ -209,12 +216,13 @@ def build_world(scenario: Scenario, timer: Timer, recorder: Recorder | None = No
     # from a stream spawned off the run's: the draws after it are the same whether or
     # not the scenario's secondary targets have a tolerance
     secondary_errors = misplace_secondaries(scene, model, rng.spawn(1)[0])
+    task_rng = rng.spawn(1)[0]
     data = scene.make_data()
     belief = scene.make_data()
     errors = ErrorModel(scenario.motion, scene.robots, rng)
     world = World(scene, belief, model, data, new_grid(scenario),
                   new_floor(scenario, scene, arm.reach_m),
-                  rng, errors,
+                  rng, errors, task_rng,
                   Mover(model, data, scene.robots, scenario.motion),
                   camera_pinhole(model, scene.robots[0].camera), workpiece_error,
                   secondary_errors, Recorder(None, "") if recorder is None else recorder, timer,
