@@ -174,8 +174,13 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     from sim.stages.episode import Episode
 
     base = load_scenario()
+    # the panel carried and stepped without noise: where it covers the site when r1 is
+    # placed again is the scene's geometry, not a draw (with some draws it covers the
+    # site from every view, and the camera rightly stays)
+    task = dataclasses.replace(base.task, max_steps=6, carry_error_m=0.0, step_noise_m=0.0,
+                               step_scale=0.0)
     s = dataclasses.replace(base, correction=dataclasses.replace(base.correction, enabled=False),
-                            task=dataclasses.replace(base.task, max_steps=6))
+                            task=task)
     real = task_module.InsertionTask.stereo_pair
     blinded = {"r1/left": 3}
 
@@ -194,7 +199,7 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     assert robots[0] == "r1" and robots.count("r1") == 1, lost  # r2 alone may lose it later
     again = lost[0]
     assert again["step"] == 2 and "3 steps running" in again["reason"]
-    assert again["placed"] and again["placement"] == 1
+    assert again["placed"] and again["placement"] == 1, repr(again)
     assert task["lost_views"] >= 3 and task["measurements"] >= 1, task["failures"]
 
     r1 = summary["robots"][0]

@@ -292,12 +292,12 @@ def test_secondary_targets_stand_in_for_a_hidden_slot():
     """Issue 21's done-when: the slot hidden under a hood, the holes in view, one mapped
     world placed both ways (as a sweep's trial does). The map cannot tell the hood's top
     from the rails' voxels, so a camera is still placed for the slot; it cannot fit the
-    rails and sights no slot. With secondary targets the frame rests on the holes, every
-    measurement is made against a hole (the camera placed for the slot falls back to the
+    rails and sights no slot. With secondary targets the frame rests on the holes, most
+    measurements are made against a hole (the camera placed for the slot falls back to the
     one it sighted; a slot fit on the hood's slit, 5 cm over the rails, is refused as
-    beyond its start's uncertainty) and the task meets the easy tolerance (measured: 4.6
-    mm, 20 % and 10 % met); without them no target is located and the task fails every
-    tolerance."""
+    beyond its start's uncertainty) and none against the slit, and the task meets the
+    easy tolerance (measured: 4.6 mm, 20 % and 10 % met); without them no target is
+    located and the task fails every tolerance."""
     episode = Episode(parse_scenario(_hooded()))
     world = episode.world
     with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:
@@ -313,13 +313,22 @@ def test_secondary_targets_stand_in_for_a_hidden_slot():
     assert "slot" not in used.frame["targets"]
     assert used.frame["frame"]["primary_seen"] is False and used.frame["frame"]["from"]
     assert used.task is not None and used.task["attempted"] is True
-    measured = [c for step in used.task["measurements_log"]
-                for c in step["cameras"].values() if "displacement" in c]
+    log = used.task["measurements_log"]
+    measured = [c for step in log for c in step["cameras"].values() if "displacement" in c]
     via_hole = [c for c in measured if c.get("via") in ("primary", "secondary")]
+    assert measured and 2 * len(via_hole) > len(measured)
     # The hood's slit, 12 mm wide and 5 cm over the rails, can pass for them (r1 looking
     # down 46-50 deg): without the goal fit's check against its start, 5 of 14
-    # measurements were made against it, 30-40 mm off, and the task stopped 32 mm away
-    assert measured and len(via_hole) == len(measured)
+    # measurements were made against it, 30-40 mm off, and the task stopped 32 mm away.
+    # A measurement against the slit reads the panel 5 cm lower than the holes do; one
+    # against the rails themselves (seen past the panel: with one draw of the task's
+    # noise r2 fit them in one step of 21, 8 mm from the holes' reading) agrees
+    for step in log:
+        cams = [c for c in step["cameras"].values() if "displacement" in c]
+        holes = [c["displacement"][2] for c in cams if c.get("via") in ("primary", "secondary")]
+        for c in cams:
+            if c.get("via") not in ("primary", "secondary") and holes:
+                assert abs(c["displacement"][2] - float(np.mean(holes))) < 0.025, step
     assert used.task["success"]["0.2"] is True
     alone = outcomes[False]
     assert alone.frame["frame"] is None
