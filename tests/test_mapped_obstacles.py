@@ -45,6 +45,44 @@ def test_the_field_never_overestimates_the_distance_to_the_nearest_cell(dims):
     assert field.clearance(origin[None] - 1.0, np.zeros(1))[0] == np.inf
 
 
+@pytest.mark.parametrize("dims", [2, 3])
+def test_the_field_measures_exactly_where_a_query_needs_it(dims):
+    """Against brute force: asked with ``exact_below``, the least clearance is the exact
+    distance to the obstacle cells (cubes or squares) whenever that is below the
+    threshold, and otherwise at least the threshold; never more than the exact one.
+    Looked up in two fields' bounds one after the other, each sphere reads its own."""
+    rng = np.random.default_rng(11)
+    res, shape = 0.05, (16,) * dims
+    masks = [rng.random(shape) < 0.03, rng.random(shape) < 0.01]
+    origin = rng.uniform(-1, 1, dims)
+    fields = [ObstacleField.from_mask(m, origin, res) for m in masks]
+    both = np.concatenate([f.bounds for f in fields])
+
+    def exact(mask: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+        lo = origin + np.argwhere(mask) * res
+        outside = np.maximum(np.maximum(lo[None] - centres[:, None],
+                                        centres[:, None] - lo[None] - res), 0.0)
+        return np.linalg.norm(outside, axis=2).min(axis=1) - radii
+
+    hits = 0
+    for threshold in (0.02, 0.05, 0.1):
+        for _ in range(200):
+            centres = origin + rng.uniform(0, 16 * res, (3, dims))
+            radii = rng.uniform(0, 0.05, 3)
+            first = int(rng.integers(0, 4))  # these read the second field
+            truth = np.concatenate([exact(masks[1], centres[:first], radii[:first]),
+                                    exact(masks[0], centres[first:], radii[first:])]).min()
+            got = fields[0].least(centres, radii, both, first, len(fields[0].bounds),
+                                  exact_below=threshold)
+            assert got <= truth + 1e-9
+            if truth < threshold:
+                hits += 1
+                assert got == pytest.approx(truth, abs=1e-9)
+            else:
+                assert got >= threshold - 1e-9
+    assert hits > 100  # the exact branch was exercised
+
+
 def test_covering_spheres_hold_every_point_of_each_geom():
     """Points drawn inside a capsule, a cylinder or a sphere of the robot's scene, and on
     a box's faces, all lie within one of the spheres covering that geom (a box's inside

@@ -194,13 +194,15 @@ class MapFields:
         object.__setattr__(self, "_both", np.concatenate([self.unknown.bounds,
                                                           self.occupied.bounds]))
 
-    def clearance(self, robot: RobotSpheres, data: mujoco.MjData) -> float:
+    def clearance(self, robot: RobotSpheres, data: mujoco.MjData,
+                  exact_below: float = -math.inf) -> float:
         """A lower bound (m) of the robot's distance to what the maps hold, its spheres
-        placed as ``data`` has them (a validity check's share: about 30 µs)."""
+        placed as ``data`` has them (a validity check's share: about 30 µs), exact to
+        the maps' cells wherever it is below ``exact_below`` (m; ObstacleField.least)."""
         c, r, n = robot.spheres.centres(data), robot.spheres.radii, robot.base
         # the base's spheres looked up in the occupied voxels' bounds, the rest's in all
-        spatial = self.unknown.least(c, r, self._both, n, len(self.unknown.bounds))
-        return min(spatial, self.floor.least(c[:n, :2], r[:n]))
+        spatial = self.unknown.least(c, r, self._both, n, len(self.unknown.bounds), exact_below)
+        return min(spatial, self.floor.least(c[:n, :2], r[:n], exact_below=exact_below))
 
 
 def known_floor(floor: FloorMap, model: mujoco.MjModel,

@@ -313,7 +313,7 @@ class ArmPlanner:
             if apart.min() < clearance_m:
                 return False
         if self.maps is not None and self.maps.clearance(
-                self._spheres[robot.name], d) < clearance_m:  # off what the maps hold
+                self._spheres[robot.name], d, clearance_m) < clearance_m:  # off the maps
             return False
         return near.clear(d, clearance_m)
 
@@ -433,6 +433,11 @@ class ArmPlanner:
         """OMPL's RRT-Connect from ``start`` to ``goal`` (9 joints each) over the joints
         ``active`` (the others held as at ``start``), until ``spent`` reaches the
         budget; the path found, its waypoints reduced by OMPL's simplifier, or None."""
+        # RRT-Connect waits for a valid goal until the termination condition, and ours
+        # counts validity checks, which waiting does not spend: an invalid goal would hang
+        spent[0] += 1
+        if not self._valid(robot, goal, self.clearance_m):
+            return None
         lo, hi = self._bounds(robot, start, goal)
         space = ob.RealVectorStateSpace(len(active))
         bounds = ob.RealVectorBounds(len(active))
