@@ -15,6 +15,7 @@ from sim.determinism import is_command, pin
 from sim.experiments.results import ResultsError
 from sim.outcome import outcome
 from sim.output_paths import check_directory, check_file
+from sim.screen import Screen
 from sim.world.gl import resolve_gl_backend
 
 EXIT_OK, EXIT_FAILURE, EXIT_INVALID = 0, 1, 2
@@ -40,7 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--video", action="store_true",
                      help="film the episode from the overview's camera (episode.mp4)")
     run.add_argument("--quiet", action="store_true",
-                     help="no progress lines while it runs (the outcome is still printed)")
+                     help="print the outcome table and errors only (no progress while it "
+                     "runs)")
     sweep = sub.add_parser("sweep", help="run many paired trials into a results database")
     sweep.add_argument("spec", type=Path, help="sweep TOML file (e.g. scenarios/table1.toml)")
     sweep.add_argument("--db", type=Path, required=True, help="results database (SQLite)")
@@ -83,15 +85,16 @@ def run(args: argparse.Namespace) -> int:
     from sim.stages.episode import Episode  # imports mujoco: after the arguments are known good
     from sim.stages.run_directory import write_run
 
+    screen = Screen(quiet=args.quiet)  # quiet: the outcome table and errors only
     episode = Episode(scenario)  # builds the scene: the last check of the input
     start = time.perf_counter()
-    _log(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
-         f"{scenario.robots.count} robot(s)")
-    summary = write_run(episode, out, not args.no_record, args.record_unknown,
-                        None if args.quiet else _log, args.video)
-    _log(f"wrote {out}/summary.json, scene.xml, look.xml, overview.png"
-         f"{'' if args.no_record else ', run.rrd'}{', episode.mp4' if args.video else ''}"
-         f" in {time.perf_counter() - start:.1f} s")
+    screen.line(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
+                f"{scenario.robots.count} robot(s)")
+    summary = write_run(episode, out, not args.no_record, args.record_unknown, screen.line,
+                        args.video, meter=screen.meter)
+    screen.line(f"wrote {out}/summary.json, scene.xml, look.xml, overview.png"
+                f"{'' if args.no_record else ', run.rrd'}{', episode.mp4' if args.video else ''}"
+                f" in {time.perf_counter() - start:.1f} s")
     print(outcome(summary, None if args.no_record else out / "run.rrd"), end="")
     return EXIT_OK
 
