@@ -134,7 +134,10 @@ def draw_labels(image: np.ndarray, labels: Sequence[tuple[str, np.ndarray,
         (w, h), _ = cv2.getTextSize(text, FONT, FONT_SCALE, 1)
         x, y = _free_spot(int(pixel[0]) + 6, int(pixel[1]) - 6, (w, h), taken, image.shape)
         taken.append((x, y - h, x + w, y + 3))
-        cv2.circle(image, (int(pixel[0]), int(pixel[1])), 3, rgb, -1, cv2.LINE_AA)
+        dot = (int(pixel[0]), int(pixel[1]))
+        cv2.circle(image, dot, 3, rgb, -1, cv2.LINE_AA)
+        if abs(y - (dot[1] - 6)) > 2:  # moved clear of another label: a leader to its dot
+            cv2.line(image, dot, (x - 2, y - h // 2), rgb, 1, cv2.LINE_AA)
         cv2.putText(image, text, (x, y), FONT, FONT_SCALE, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(image, text, (x, y), FONT, FONT_SCALE, rgb, 1, cv2.LINE_AA)
 
