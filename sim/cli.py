@@ -14,6 +14,8 @@ from sim.config.schema import ScenarioError
 from sim.determinism import is_command, pin
 from sim.experiments.results import ResultsError
 from sim.outcome import outcome
+from sim.output_paths import check_directory, check_file
+from sim.screen import Screen
 from sim.world.gl import resolve_gl_backend
 
 EXIT_OK, EXIT_FAILURE, EXIT_INVALID = 0, 1, 2
@@ -39,7 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--video", action="store_true",
                      help="film the episode from the overview's camera (episode.mp4)")
     run.add_argument("--quiet", action="store_true",
-                     help="no progress lines while it runs (the outcome is still printed)")
+                     help="print the outcome table and errors only (no progress while it "
+                     "runs)")
     sweep = sub.add_parser("sweep", help="run many paired trials into a results database")
     sweep.add_argument("spec", type=Path, help="sweep TOML file (e.g. scenarios/table1.toml)")
     sweep.add_argument("--db", type=Path, required=True, help="results database (SQLite)")
@@ -67,25 +70,31 @@ def _log(message: str) -> None:
     print(f"taskcam: {message}", file=sys.stderr, flush=True)
 
 
+def run_files(record: bool, video: bool) -> list[str]:
+    """The files ``taskcam run`` writes into its run directory (and ``textures/``)."""
+    return (["summary.json", "scene.xml", "look.xml", "overview.png"]
+            + ["run.rrd"] * record + ["episode.mp4"] * video)
+
+
 def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario, args.seed)
     out: Path = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
-    if out.exists() and not out.is_dir():
-        raise ScenarioError("--out", "out", str(out), "a directory (this is a file)")
+    check_directory("--out", out, run_files(not args.no_record, args.video), ["textures"])
 
     resolve_gl_backend()  # this command renders: the GL backend before mujoco loads
     from sim.stages.episode import Episode  # imports mujoco: after the arguments are known good
     from sim.stages.run_directory import write_run
 
+    screen = Screen(quiet=args.quiet)  # quiet: the outcome table and errors only
     episode = Episode(scenario)  # builds the scene: the last check of the input
     start = time.perf_counter()
-    _log(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
-         f"{scenario.robots.count} robot(s)")
-    summary = write_run(episode, out, not args.no_record, args.record_unknown,
-                        None if args.quiet else _log, args.video)
-    _log(f"wrote {out}/summary.json, scene.xml, look.xml, overview.png"
-         f"{'' if args.no_record else ', run.rrd'}{', episode.mp4' if args.video else ''}"
-         f" in {time.perf_counter() - start:.1f} s")
+    screen.line(f"scenario '{scenario.name}' ({scenario.source}), seed {scenario.seed}, "
+                f"{scenario.robots.count} robot(s)")
+    summary = write_run(episode, out, not args.no_record, args.record_unknown, screen.line,
+                        args.video, meter=screen.meter)
+    screen.line(f"wrote {out}/summary.json, scene.xml, look.xml, overview.png"
+                f"{'' if args.no_record else ', run.rrd'}{', episode.mp4' if args.video else ''}"
+                f" in {time.perf_counter() - start:.1f} s")
     print(outcome(summary, None if args.no_record else out / "run.rrd"), end="")
     return EXIT_OK
 
@@ -93,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
 def sweep(args: argparse.Namespace) -> int:
     from sim.config.sweep import load_sweep
 
+    check_file("--db", args.db)
     spec = load_sweep(args.spec, args.trials)
     resolve_gl_backend()  # this command renders: the GL backend before mujoco loads
     from sim.world.scene import build_scene  # imports mujoco
@@ -100,8 +110,6 @@ def sweep(args: argparse.Namespace) -> int:
     build_scene(spec.scenario)  # the robots' bases clear of the work-piece and each other
     if args.workers < 1:
         raise ScenarioError("--workers", "workers", args.workers, "an integer >= 1")
-    if args.db.exists() and not args.db.is_file():
-        raise ScenarioError("--db", "db", str(args.db), "a database file (this is a directory)")
     from sim.experiments.results import Results
     from sim.experiments.runner import run_sweep
 
@@ -139,8 +147,11 @@ def report(args: argparse.Namespace) -> int:
     if not args.db.is_file():
         found = "a directory" if args.db.is_dir() else "no such file"
         raise ResultsError(args.db, found, "a results database file", "<file>")
-    if args.out is not None and args.out.exists() and not args.out.is_dir():
-        raise ScenarioError("--out", "out", str(args.out), "a directory (this is a file)")
+    stem = args.db.stem  # the tables go to --out, else beside the database
+    check_directory("--out" if args.out is not None else "<db>",
+                    args.out if args.out is not None else args.db.parent,
+                    [f"{stem}.md", f"{stem}.csv", f"{stem}.png", f"{stem}-orderings.md",
+                     f"{stem}-orderings.csv"])
     try:
         out = tables(args.db, args.out)  # reads the database only
     except ResultsError as exc:
@@ -157,12 +168,12 @@ def compare(args: argparse.Namespace) -> int:
     from sim.experiments.paired import compare as paired
     from sim.experiments.paired import markdown
 
+    if args.out is not None:
+        check_file("--out", args.out)
     for key, db in (("<first>", args.first), ("<second>", args.second)):
         if not db.is_file():
             found = "a directory" if db.is_dir() else "no such file"
             raise ResultsError(db, found, "a results database file", key)
-    if args.out is not None and args.out.is_dir():
-        raise ScenarioError("--out", "out", str(args.out), "a file path (this is a directory)")
     try:
         cells = paired(args.first, args.second)  # reads the databases only
     except ResultsError as exc:
@@ -181,8 +192,7 @@ def compare(args: argparse.Namespace) -> int:
 def figure7(args: argparse.Namespace) -> int:
     from sim.experiments.figure7 import figure7 as study
 
-    if args.out.exists() and not args.out.is_dir():
-        raise ScenarioError("--out", "out", str(args.out), "a directory (this is a file)")
+    check_directory("--out", args.out, ["figure7_a.png", "figure7_b.png", "figure7.json"])
     report = study(args.out)
     (args.out / "figure7.json").write_text(json.dumps(report, indent=2) + "\n")
     for instance in report["instances"]:

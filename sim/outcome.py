@@ -9,13 +9,15 @@ outcome can be printed again from its directory.
 from __future__ import annotations
 
 import math
+import os
 import shlex
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 RATING_TERMS = ("dof", "resolution", "tfv", "tav", "free")  # eq. 1's factors
+WEB_VIEWER_PORT = 9090  # rerun --web-viewer serves here unless told another port
 
 
 def distance_m(placement: dict[str, Any]) -> float | None:
@@ -30,18 +32,82 @@ def _error(e: dict[str, float] | None) -> str:
     return "-" if not e else f"{1000 * e['position_m']:.1f} mm {e['orientation_deg']:.2f}°"
 
 
+def correction_words(correction: dict[str, Any] | None) -> str | None:
+    """A correction's status and why, in ``summary.json``'s words: ``corrected``,
+    ``uncertain: <why>`` or ``failed: <why>`` (None: no correction was made)."""
+    if not correction or "status" not in correction:
+        return None
+    why = correction.get("failed")
+    return correction["status"] if not why else f"{correction['status']}: {why}"
+
+
+def _correction_clause(correction: dict[str, Any] | None) -> str:
+    """The correction in a placement's line: its status, the pose error before and after
+    (off the truth) and, unless corrected, why."""
+    if not correction or "status" not in correction:
+        return ""
+    status, why = correction["status"], correction.get("failed")
+    if status == "failed":
+        return (f"; correction failed ({why}; {correction.get('frames_located', 0)} of "
+                f"{correction.get('frames', 0)} frames located): the commanded pose stands")
+    clause = (f"; {status} {_error(correction.get('error_before'))} -> "
+              f"{_error(correction.get('error_after'))}")
+    return clause + (f" ({why})" if why else "")
+
+
+def placement_words(placement: dict[str, Any], again: bool = False) -> str:
+    """A placement in words: its target, rating, distance and correction, or why it
+    was not placed (``again``: a re-placement during the task)."""
+    if not placement.get("placed"):
+        return (f"not placed{' again' if again else ''} "
+                f"({placement.get('refused', 'no view found')})")
+    target, rating = placement["target"], placement["rating"]
+    return (f"placed{' again' if again else ''} for {target['name']} ({target['role']}), "
+            f"RF {rating['total']:.1f}, {distance_m(placement):.2f} m away"
+            + _correction_clause(placement.get("correction")))
+
+
 def placement_line(name: str, placement: dict[str, Any]) -> str:
     """One robot's placement, in a line: its target, rating, distance and correction."""
-    if not placement.get("placed"):
-        return f"{name}: not placed ({placement.get('refused', 'no view found')})"
-    target, rating = placement["target"], placement["rating"]
-    line = (f"{name}: placed for {target['name']} ({target['role']}), RF "
-            f"{rating['total']:.1f}, {distance_m(placement):.2f} m away")
-    correction = placement.get("correction")
-    if correction and correction.get("error_after"):
-        line += (f"; corrected {_error(correction['error_before'])} -> "
-                 f"{_error(correction['error_after'])}")
-    return line
+    return f"{name}: {placement_words(placement)}"
+
+
+def placed_line(robots: Sequence[dict[str, Any]]) -> str:
+    """How many robots were placed of how many, and which were not."""
+    placed = [r["name"] for r in robots if r.get("placed")]
+    missing = [r["name"] for r in robots if not r.get("placed")]
+    line = f"placed: {len(placed)} of {len(robots)} robots"
+    line += f" ({', '.join(placed)})" if placed else ""
+    return line + (f"; not placed: {', '.join(missing)}" if missing else "")
+
+
+def replacement_line(record: dict[str, Any], robot: dict[str, Any] | None) -> str:
+    """A re-placement during the task (``task.replacements``' ``record``), in a line:
+    the robot, the task step, why, and what came of it (``robot``: the robot's record,
+    whose ``placements`` hold the new placement)."""
+    head = f"{record['robot']} at task step {record['step']} ({record['reason']}): "
+    if "placement" in record and robot is not None:
+        return head + placement_words(robot["placements"][record["placement"]], again=True)
+    if record.get("worth_the_move") is False:
+        return (head + f"stays; the best view of the site (RF {record['best_rating']:.1f}) "
+                "is not worth the move")
+    return head + "stays; no view of the site rates"
+
+
+def replacement_lines(summary: dict[str, Any]) -> list[str]:
+    """Every re-placement of the task in ``summary``, a line each, in order."""
+    task = summary.get("task") or {}
+    robots = {r["name"]: r for r in summary["robots"]}
+    return [replacement_line(rec, robots.get(rec["robot"]))
+            for rec in task.get("replacements", [])]
+
+
+def base_words(base: dict[str, float] | None) -> str:
+    """A base pose on the floor: x, y (m) and yaw (deg)."""
+    if not base:
+        return "-"
+    yaw = math.degrees(math.remainder(base["yaw_rad"], 2 * math.pi))  # the joint may wind
+    return f"{base['x_m']:.2f}, {base['y_m']:.2f} m, {yaw:.1f}°"
 
 
 def _percent(tolerance: str) -> str:
@@ -83,17 +149,31 @@ def _table(rows: Sequence[Sequence[str]]) -> list[str]:
             for row in rows]
 
 
-def view_command(recording: Path) -> str:
+def has_display(environ: Mapping[str, str] | None = None) -> bool:
+    """Whether a desktop viewer can open here: always on macOS and Windows, elsewhere
+    with an X11 or Wayland display (``DISPLAY``, ``WAYLAND_DISPLAY``)."""
+    env = os.environ if environ is None else environ
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(env.get("DISPLAY") or env.get("WAYLAND_DISPLAY"))
+
+
+def view_command(recording: Path, display: bool | None = None) -> str:
     """The command that opens ``recording`` in the rerun viewer: the viewer installed
     beside this Python (the project's environment; relative to here where it lies
-    below), else the one on the PATH."""
+    below), else the one on the PATH. Without a display (``display`` None: this
+    machine's, :func:`has_display`) it serves rerun's web viewer to a browser instead,
+    on its default port."""
     beside = Path(sys.executable).parent / "rerun"
     viewer = "rerun"
     if beside.exists():
         viewer = str(beside)
         if beside.is_relative_to(Path.cwd()):
             viewer = str(beside.relative_to(Path.cwd()))
-    return f"{shlex.quote(viewer)} {shlex.quote(str(recording))}"
+    if has_display() if display is None else display:
+        return f"{shlex.quote(viewer)} {shlex.quote(str(recording))}"
+    return (f"{shlex.quote(viewer)} --web-viewer {shlex.quote(str(recording))}"
+            f"  # no display here: open http://localhost:{WEB_VIEWER_PORT} in a browser")
 
 
 def outcome(summary: dict[str, Any], recording: Path | None = None) -> str:
@@ -101,19 +181,26 @@ def outcome(summary: dict[str, Any], recording: Path | None = None) -> str:
     # the pose the robot believes its camera has, off the truth: as commanded (before
     # correction), and as corrected
     head = ["robot", "target", "RF", *RATING_TERMS, "distance", "pose error",
-            "corrected"]
+            "corrected", "correction", "base (x, y, yaw)"]
     rows = [head]
     for r in summary["robots"]:
         if not r.get("placed"):
-            rows.append([r["name"], "not placed", *["-"] * (len(head) - 2)])
+            rows.append([r["name"], "not placed", *["-"] * (len(head) - 3),
+                         base_words(r.get("base"))])
             continue
         rating, correction = r["rating"], r.get("correction") or {}
         rows.append([r["name"], f"{r['target']['name']} ({r['target']['role']})",
                      f"{rating['total']:.1f}", *(f"{rating[k]:.3g}" for k in RATING_TERMS),
                      f"{distance_m(r):.2f} m",
                      _error(correction.get("error_before", r.get("positioning_error"))),
-                     _error(correction.get("error_after"))])
-    lines = _table(rows)
+                     _error(correction.get("error_after")),
+                     correction.get("status", "-"), base_words(r.get("base"))])
+    lines = _table(rows) + ["", placed_line(summary["robots"])]
+    for r in summary["robots"]:  # why a correction is not trusted, as summary.json says
+        correction = r.get("correction") if r.get("placed") else None
+        if correction and correction.get("status") not in (None, "corrected"):
+            lines.append(f"{r['name']}'s correction {correction_words(correction)}")
+    lines += replacement_lines(summary)
     task = summary.get("task")
     if task and task.get("attempted"):
         tolerances = list(task["success"])

@@ -239,7 +239,7 @@ def test_episode_reports_the_correction_against_the_truth(default_run):
 def test_targets_are_triangulated_into_a_common_frame(default_run):
     _, summary = default_run
     frame = summary["target_frame"]
-    primary = frame["targets"]["primary"]
+    primary = frame["targets"]["wide"]  # the default scenario's primary hole
     assert primary["error_m"] < 0.01
     assert frame["frame"] is not None
     z = np.array(frame["frame"]["z_axis"])

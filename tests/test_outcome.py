@@ -31,7 +31,8 @@ def _robot(name: str, position: list[float], target: list[float]) -> dict:
             "rating": {"total": 77.04, "dof": 1.0, "resolution": 552.6, "tfv": 0.2,
                        "tav": 0.697, "free": 0.999},
             "positioning_error": {"position_m": 0.0228, "orientation_deg": 1.49},
-            "correction": {"error_before": {"position_m": 0.0228, "orientation_deg": 1.49},
+            "correction": {"status": "corrected",
+                           "error_before": {"position_m": 0.0228, "orientation_deg": 1.49},
                            "error_after": {"position_m": 0.0013, "orientation_deg": 0.03}}}
 
 
@@ -54,12 +55,14 @@ def test_the_outcome_table_says_what_the_summary_says():
     assert robots[1].split()[:5] == ["r1", "slot", "(primary)", "77.0", "1"]
     assert "0.50 m" in robots[1] and "22.8 mm 1.49°" in robots[1] and "1.3 mm 0.03°" in robots[1]
     assert robots[2].split()[:3] == ["r2", "not", "placed"]
-    task = lines[lines.index("") + 1:lines.index("") + 3]
+    assert lines[4] == "placed: 1 of 2 robots (r1); not placed: r2"
+    start = next(k for k, line in enumerate(lines) if line.startswith("task "))
+    task = lines[start:start + 2]
     assert task[0].split()[1:4] == ["20", "%", "of"]
     assert task[1].split() == ["met", "met", "missed", "2.73", "mm", "17"]
     assert "mapping 3.2 s" in text and "total 20.5 s" in text
     assert lines[-1] == "view: " + view_command(Path("runs/x/run.rrd"))
-    assert shlex.split(lines[-1])[-1] == "runs/x/run.rrd"
+    assert shlex.split(lines[-1], comments=True)[-1] == "runs/x/run.rrd"
 
 
 def test_stage_lines():
@@ -133,8 +136,8 @@ def test_taskcam_run_prints_its_stages_and_outcome(default_run):
     out, summary = default_run
     printed = (out.parent / "stdout.txt").read_text()
     assert printed == outcome(summary, out / "run.rrd")  # the table, from the summary
-    viewer, recording = shlex.split(printed.splitlines()[-1].removeprefix("view: "))
-    assert Path(recording) == out / "run.rrd" and Path(viewer).name == "rerun"
+    command = shlex.split(printed.splitlines()[-1].removeprefix("view: "), comments=True)
+    assert Path(command[-1]) == out / "run.rrd" and Path(command[0]).name == "rerun"
     stages = (out.parent / "stderr.txt").read_text()
     for robot in summary["robots"]:
         assert f"taskcam: {robot['name']}: placed for {robot['target']['name']} (" in stages

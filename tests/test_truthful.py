@@ -315,7 +315,7 @@ def test_secondary_targets_stand_in_for_a_hidden_slot():
     assert used.task is not None and used.task["attempted"] is True
     log = used.task["measurements_log"]
     measured = [c for step in log for c in step["cameras"].values() if "displacement" in c]
-    via_hole = [c for c in measured if c.get("via") in ("primary", "secondary")]
+    via_hole = [c for c in measured if c.get("via") in ("wide", "narrow")]
     assert measured and 2 * len(via_hole) > len(measured)
     # The hood's slit, 12 mm wide and 5 cm over the rails, can pass for them (r1 looking
     # down 46-50 deg): without the goal fit's check against its start, 5 of 14
@@ -325,9 +325,9 @@ def test_secondary_targets_stand_in_for_a_hidden_slot():
     # noise r2 fit them in one step of 21, 8 mm from the holes' reading) agrees
     for step in log:
         cams = [c for c in step["cameras"].values() if "displacement" in c]
-        holes = [c["displacement"][2] for c in cams if c.get("via") in ("primary", "secondary")]
+        holes = [c["displacement"][2] for c in cams if c.get("via") in ("wide", "narrow")]
         for c in cams:
-            if c.get("via") not in ("primary", "secondary") and holes:
+            if c.get("via") not in ("wide", "narrow") and holes:
                 assert abs(c["displacement"][2] - float(np.mean(holes))) < 0.025, step
     assert used.task["success"]["0.2"] is True
     alone = outcomes[False]

@@ -95,8 +95,8 @@ class TargetConfig(Checked):
 
 def _default_targets() -> tuple[TargetConfig, ...]:
     return (
-        TargetConfig("primary", "primary", (0.05, 0.0), 0.02),
-        TargetConfig("secondary", "secondary", (0.17, 0.1), 0.015, 0.001),
+        TargetConfig("wide", "primary", (0.05, 0.0), 0.02),
+        TargetConfig("narrow", "secondary", (0.17, 0.1), 0.015, 0.001),
     )
 
 

@@ -187,6 +187,11 @@ class PoseCorrector:
         prediction; whether it was located."""
         return self._frame(robot, self._last_measured, "wider search", WIDER)
 
+    @property
+    def frames_taken(self) -> int:
+        """How many frames this move's correction has taken so far."""
+        return 0 if self._tracker is None else len(self._tracker.frames)
+
     def retrace(self, path: np.ndarray, back_to: np.ndarray) -> np.ndarray:
         """The way (k, 9) back along ``path`` to its waypoint nearest the joints
         ``back_to`` (where a frame was last located) and forth again to the goal; frames

@@ -27,7 +27,15 @@ import numpy as np
 from calibration.target_frame import common_frame
 from mapping import Pinhole
 from sim.config.scenario import Scenario
-from sim.outcome import look_line, mapping_line, placement_line, task_line
+from sim.outcome import (
+    look_line,
+    mapping_line,
+    placed_line,
+    placement_line,
+    replacement_line,
+    task_line,
+)
+from sim.screen import Meter
 from sim.stages.correction import prior_pose_sd
 from sim.stages.corrector import PoseCorrector
 from sim.stages.exploration import explore
@@ -98,6 +106,8 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
         placements[robot.name] = (p,)
         if p.commanded is not None:
             taken.append(p.commanded)
+    world.progress(placed_line([{"name": n, "placed": h[0].placed}
+                                for n, h in placements.items()]))
     seen = look(world, renderer, [h[0] for h in placements.values()], targets, prior_sd)
     frame = common_frame(list(seen.sightings), targets)
     world.progress(look_line(seen.rows, frame))
@@ -109,13 +119,18 @@ def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, meth
             task = done.summary()
         placements = done.placements
         world.progress(task_line(task))
+        for record in task.get("replacements", []):
+            history = placements[record["robot"]]
+            world.progress(replacement_line(
+                record, {"placements": [p.summary() for p in history]}))
     return Outcome(placements, seen, frame, task)
 
 
 def robot_summary(world: World, placements: tuple[Placement, ...], look: dict[str, Any]
                   ) -> dict[str, Any]:
-    """``summary.json``'s record of one robot: where its camera ended (``pose``, the
-    truth, as in ``scene.xml``'s keyframe ``final``) and the placement it ended at,
+    """``summary.json``'s record of one robot: where its camera and base ended (``pose``
+    and ``base``: x, y in m and yaw in rad, on the floor; the truth, as in ``scene.xml``'s
+    keyframe ``final``) and the placement it ended at,
     every placement in order, and what it saw from the placement it looked from."""
     robot = placements[0].robot
     mujoco.mj_forward(world.model, world.data)  # poses where the joints now are
@@ -126,10 +141,20 @@ def robot_summary(world: World, placements: tuple[Placement, ...], look: dict[st
         now.pop(key, None)
     if ended is not None and ended.commanded_pose is not None:
         now["positioning_error"] = pose_error(ended.commanded_pose, final)
+    x, y, yaw = (float(v) for v in world.data.qpos[robot.qpos_adr[:3]])
     return {"name": robot.name, "camera": robot.camera, **now,
             "placed": ended is not None, "pose": pose_dict(final),
+            "base": {"x_m": x, "y_m": y, "yaw_rad": yaw},  # as the keyframe "final" has it
             "placement": None if ended is None else ended.index,
             **look, "placements": [p.summary() for p in placements]}
+
+
+def placed_count(robots: list[dict[str, Any]]) -> dict[str, Any]:
+    """``summary.json``'s ``placed``: how many robots ended placed (``count``) of how
+    many (``of``), and which (``robots``; ``not_placed``)."""
+    names = [r["name"] for r in robots if r["placed"]]
+    return {"count": len(names), "of": len(robots), "robots": names,
+            "not_placed": [r["name"] for r in robots if not r["placed"]]}
 
 
 class Episode:
@@ -156,7 +181,7 @@ class Episode:
         return explore(self.world, renderer).summary()
 
     def run(self, recorder: Recorder | None = None,
-            progress: Callable[[str], None] | None = None
+            progress: Callable[[str], None] | None = None, meter: Meter | None = None
             ) -> tuple[dict[str, Any], dict[str, tuple[str, dict[str, bytes]]]]:
         """All stages; returns ``summary.json``'s content and the scenes to save, by file
         name (their MJCF and the files it reads): ``scene.xml``, the world as it ended
@@ -165,6 +190,7 @@ class Episode:
         t0 = time.perf_counter()
         world = self.world if recorder is None else replace(self.world, recorder=recorder)
         world = world if progress is None else replace(world, progress=progress)
+        world = world if meter is None else replace(world, meter=meter)
         targets = world.scene.targets
         world.recorder.step(0)
         framed = framed_points(world.model, world.data, [r.body_ids for r in world.scene.robots])
@@ -184,7 +210,8 @@ class Episode:
         self.timer.set("total", time.perf_counter() - t0)
         summary = {
             "version": VERSION, "scenario": self.scenario.name, "seed": self.scenario.seed,
-            "robots": robots, "mapping": mapping, "target_frame": outcome.frame,
+            "placed": placed_count(robots), "robots": robots, "mapping": mapping,
+            "target_frame": outcome.frame,
             "task": outcome.task, "timings_s": self.timer.rounded(4),
         }
         return summary, scenes

@@ -127,8 +127,9 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
 
     frame_robots = sorted({f.robot for f in sightings
                            if f.target in (frame["frame"] or {}).get("from", [])})
-    return done(task.run(cameras, slot, lying_panel(world), replace, frame_robots, watch,
-                         stand_ins(world, at, sightings, targets, frame, slot, prior_sd)))
+    with world.meter("task", "step", s.task.max_steps) as task.on_step:
+        return done(task.run(cameras, slot, lying_panel(world), replace, frame_robots, watch,
+                             stand_ins(world, at, sightings, targets, frame, slot, prior_sd)))
 
 
 def slot_belief(world: World, targets: tuple[Target, ...], frame: dict[str, Any]) -> SlotBelief:

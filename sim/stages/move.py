@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from sim.screen import Advance
 from sim.stages.correction import Correction
 from sim.stages.corrector import PoseCorrector
 from sim.stages.world import World
@@ -25,6 +26,16 @@ def move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector 
     forth again if the last frame cannot be located) and leave the robot believing it.
     ``prior_sd`` is an uncorrected pose's standard deviation (m, deg). Time spent on
     frames during the move counts as correction's."""
+    if corrector is None:
+        return _move(world, robot, path, None, prior_sd, lambda done: None)
+    # the correction's frames, shown as they are taken (the move's long part)
+    with world.meter(f"{robot.name} moving, correcting its pose", "frame", None) as shown:
+        return _move(world, robot, path, corrector, prior_sd, shown)
+
+
+def _move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector | None,
+          prior_sd: tuple[float, float], shown: Advance
+          ) -> tuple[MotionResult, Correction | None]:
     timer, recorder = world.timer, world.recorder
     frames: Callable[[float, np.ndarray], None] | None = None
     if corrector is not None:
@@ -37,10 +48,11 @@ def move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector 
     def on_sample(t: float, measured: np.ndarray) -> None:
         nonlocal framing
         recorder.motion(robot.name, t, world.data, camera_pose(world.data, robot.camera))
-        if frames is not None:
+        if frames is not None and corrector is not None:
             start = time.perf_counter()
             frames(t, measured)
             framing += time.perf_counter() - start
+            shown(corrector.frames_taken)
 
     # a move that goes nowhere (a re-placement to where the camera is) makes no new error
     still = len(path) < 2 or float(np.abs(np.diff(path, axis=0)).max()) < 1e-9

@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 
 from mapping import Pinhole
+from sim.stages.overview_marks import project
 
 ELEVATION_DEG = -30.0  # looking down this far below the horizon
 MARGIN = 1.15  # the framed sphere's radius grown by this, so nothing touches the edge
@@ -80,13 +81,14 @@ def frustum_segments(T_world_cam: np.ndarray, pinhole: Pinhole, depth: float
     return [(apex, c) for c in far] + [(far[k], far[(k + 1) % 4]) for k in range(4)]
 
 
-def _add_lines(scene: mujoco.MjvScene, segments: list[tuple[np.ndarray, np.ndarray]]) -> None:
+def _add_lines(scene: mujoco.MjvScene, segments: list[tuple[np.ndarray, np.ndarray]],
+               rgba: tuple[float, float, float, float] = FRUSTUM_RGBA) -> None:
     for start, end in segments:
         if scene.ngeom >= scene.maxgeom:
             return
         geom = scene.geoms[scene.ngeom]
         mujoco.mjv_initGeom(geom, mujoco.mjtGeom.mjGEOM_LINE, np.zeros(3), np.zeros(3),
-                            np.zeros(9), np.array(FRUSTUM_RGBA, np.float32))
+                            np.zeros(9), np.array(rgba, np.float32))
         mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_LINE, 3.0, start, end)
         scene.ngeom += 1
 
@@ -113,13 +115,21 @@ class Overview:
         self.renderer.close()
 
     def render(self, data: mujoco.MjData, frusta: list[np.ndarray] | None = None,
-               pinhole: Pinhole | None = None) -> np.ndarray:
-        """The picture (h, w, 3; uint8 RGB) of the world in ``data``."""
+               pinhole: Pinhole | None = None,
+               colours: list[tuple[float, float, float, float]] | None = None) -> np.ndarray:
+        """The picture (h, w, 3; uint8 RGB) of the world in ``data``, the ``frusta``
+        (OpenCV camera poses) drawn in, each in its ``colours`` (RGBA; default green)."""
         self.renderer.update_scene(data, camera=self.camera)
         if frusta and pinhole is not None:
-            for T in frusta:
-                _add_lines(self.renderer.scene, frustum_segments(T, pinhole, FRUSTUM_M))
+            for k, T in enumerate(frusta):
+                _add_lines(self.renderer.scene, frustum_segments(T, pinhole, FRUSTUM_M),
+                           FRUSTUM_RGBA if colours is None else colours[k])
         return self.renderer.render().copy()
+
+    def pixels(self, points: np.ndarray) -> np.ndarray:
+        """Where world ``points`` (n, 3; m) lie in the last picture (n, 2; NaN: behind)."""
+        return project(self.renderer.scene.camera[0], points, self.renderer.width,
+                       self.renderer.height)
 
     def segmentation(self, data: mujoco.MjData) -> np.ndarray:
         """Which geom (id, -1 for none) each pixel of the picture shows."""

@@ -56,6 +56,7 @@ from mapping import (
 from mapping.cad import to_object
 from mapping.stereo import stereo_depth
 from sim.config.scenario import TaskConfig
+from sim.screen import Advance
 from sim.stages.record import Recorder
 from sim.stages.relative import (
     Measurement,
@@ -107,6 +108,10 @@ def panel_model(model: mujoco.MjModel) -> BoxModel:
     return BoxModel(model.geom_pos[geoms].copy(), model.geom_size[geoms].copy())
 
 
+def _unseen(done: float) -> None:
+    """A step nobody is shown."""
+
+
 @dataclass(frozen=True)
 class Replacement:
     """A camera's re-placement during the task: its record in ``replacements``, and the
@@ -137,6 +142,7 @@ class InsertionTask(TaskImages):
         self.world, self.baseline_m, self.grid, self.cfg = world, baseline_m, grid, cfg
         self.noise_scale = max(1.0, REFERENCE_FX_PX / pinhole.fx)
         self.rng, self.recorder = rng, recorder
+        self.on_step: Advance = _unseen  # told each step as it starts (a live meter)
         self.model = panel_model(m)  # the CAD model: the nominal one
         self.mocap = int(m.body_mocapid[m.body("panel/panel").id])
         self.slot_site = m.site("workpiece/slot").id
@@ -308,6 +314,7 @@ class InsertionTask(TaskImages):
                 watch.start(cam.robot.name, cam.believed[:3, 3], lying.pose)
         for step in range(cfg.max_steps):
             steps = step + 1
+            self.on_step(steps)
             self.recorder.tick()  # each task step is a step of the recording's timeline
             t = t0 + 2.0 + STEP_S * step
             covariance: np.ndarray | None = None

@@ -24,6 +24,7 @@ import numpy as np
 
 from mapping import FloorMap, OccupancyGrid, Pinhole, SensorModel
 from sim.config.scenario import Scenario
+from sim.screen import Meter, no_meter
 from sim.stages.record import Recorder
 from sim.stages.timer import Timer
 from sim.world.arm import Arm, scene_arm
@@ -103,6 +104,8 @@ class World:
     places: dict[tuple[Any, ...], Any] = field(default_factory=dict)
     # told a line as each stage ends (``taskcam run`` prints them)
     progress: Callable[[str], None] = field(default=print_nothing)
+    # a live meter inside a long stage (sim/screen.py): silent unless on a terminal
+    meter: Meter = field(default=no_meter)
 
     @property
     def nominal(self) -> mujoco.MjModel:

@@ -211,7 +211,7 @@ def _workpiece(spec: mujoco.MjSpec, s: Scenario) -> tuple[Target, ...]:
     plate = wp.geom("plate")
     half_x, half_y = float(plate.size[0]), float(plate.size[1])
     top = float(plate.pos[2] + plate.size[2])
-    hole_depth = float(wp.geom("hole_primary").size[1])
+    hole_depth = float(wp.geom("hole_wide").size[1])  # every hole is as deep
     listed = {f"hole_{t.name}" for t in s.workpiece.targets}
     for geom in list(wp.geoms):
         if geom.name.startswith("hole_") and geom.name not in listed:
