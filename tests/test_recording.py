@@ -238,7 +238,7 @@ def test_candidates_are_coloured_by_rating_with_a_legend_and_labels_stand_apart(
     assert len({colours[k] for k in range(1, 5)}) == 4  # each rated one its own colour
     legend = _components(path, "/world/r1/candidates/legend")
     labels = [t for t in legend["Points3D:labels"][0] if t]
-    assert labels == ["r1: RF 1.0 (grey: 0)", "median 3.0", "r1: RF 8.0 (best)"]
+    assert labels == ["r1: RF 1 (grey: 0)", "best RF 8 (median 3)"]
     assert legend["Points3D:colors"][0][-1] == colours[4]  # the best's colour tops the bar
     # the targets' labels stand apart, one above the other, the chosen view's at its camera
     lifted = np.array(_components(path, "/world/targets/labels")["Points3D:positions"][0])

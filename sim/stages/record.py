@@ -218,9 +218,9 @@ class Recorder:
         """The rated candidates (n x 3, m; their ratings RF), coloured on :data:`SCALE`
         by their rank among those rated above 0 (a dome of many poor views and a few good
         ones is told apart so), those rated 0 small and grey; under
-        ``candidates/legend`` the scale as a bar beside them, labelled with the ratings
-        its colours stand for (the lowest, the median, the best). Each robot's legend
-        stands ``label_m`` beyond the one before."""
+        ``candidates/legend`` the scale as a bar above them, labelled at its ends with
+        the ratings its colours stand for (the lowest rated, the median, the best). Each
+        robot's legend stands ``label_m`` above the one before."""
         if self.rec is None or len(totals) == 0:
             return
         rated = totals > 0
@@ -234,14 +234,13 @@ class Recorder:
             return
         low, high = positions.min(axis=0), positions.max(axis=0)
         ticks = np.linspace(0.0, 1.0, 21)
-        x = high[0] + self.label_m * (1 + 2 * self.legends)
         self.legends += 1
-        bar = np.column_stack([np.full_like(ticks, x), np.full_like(ticks, low[1]),
-                               low[2] + ticks * max(high[2] - low[2], 3 * self.label_m)])
+        bar = np.column_stack([low[0] + ticks * max(high[0] - low[0], 6 * self.label_m),
+                               np.full_like(ticks, (low[1] + high[1]) / 2),
+                               np.full_like(ticks, high[2] + self.label_m * self.legends)])
         labels = [""] * len(ticks)
-        labels[0] = f"{robot}: RF {values[0]:.1f} (grey: 0)"
-        labels[10] = f"median {float(np.median(values)):.1f}"
-        labels[-1] = f"{robot}: RF {values[-1]:.1f} (best)"
+        labels[0] = f"{robot}: RF {values[0]:.3g} (grey: 0)"
+        labels[-1] = f"best RF {values[-1]:.3g} (median {float(np.median(values)):.3g})"
         self.rec.log(f"world/{robot}/candidates/legend",
                      rr.Points3D(bar, colors=_colormap(ticks), radii=0.012, labels=labels))
 
