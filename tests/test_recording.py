@@ -194,7 +194,9 @@ def test_the_default_runs_recording_opens_clean_and_follows_the_stages(default_r
     # the stages' steps, from the recording's own plots and choices
     mapping = recording.steps["/mapping/region_entropy_bits", "Scalars"]
     task = recording.steps["/task/displacement_m", "Scalars"]
-    placed = {n: min(recording.steps[f"/world/{n}/chosen", "Arrows3D"]) for n in names}
+    chosen = {n: recording.steps.get((f"/world/{n}/chosen", "Arrows3D")) for n in names}
+    placed = {n: min(steps) for n, steps in chosen.items() if steps}
+    assert placed, "no robot was placed"
     look = max(placed.values()) + 1  # the look is the step after the last placement
     assert max(mapping) < min(placed.values()) and look < min(task)
     for robot in summary["robots"]:
@@ -202,7 +204,8 @@ def test_the_default_runs_recording_opens_clean_and_follows_the_stages(default_r
         steps = image_steps(recording, f"/world/{name}/camera")
         if summary["mapping"]["views"][name]:
             assert steps["DepthImage"] & mapping, name  # a mapping view's depth
-        assert placed[name] in steps["Image"], name  # its correction's final frame
+        if name in placed:
+            assert placed[name] in steps["Image"], name  # its correction's final frame
         assert look in steps["Image"], name
         assert len(steps["Image"] & task) >= len(task) // 2, name  # the task's images
 

@@ -367,7 +367,7 @@ class Recorder:
                                  colors=[60, 220, 90]))
         self.rec.log(f"world/{robot}/chosen/label",
                      rr.Points3D([position], radii=0.004, labels=[f"{robot} -> {label}"],
-                                 colors=[60, 220, 90]))
+                                 colors=[20, 120, 40]))  # dark: legible on a label's grey
 
     def close(self) -> None:
         if self.film is not None:
