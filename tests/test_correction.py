@@ -231,7 +231,7 @@ def test_episode_reports_the_correction_against_the_truth(default_run):
     paths = set(RrdReader(out / "run.rrd").store().schema().entity_paths())
     for name in ("r1", "r2"):
         assert f"/world/{name}/fiducials" in paths
-        assert f"/world/{name}/camera/rgb/fiducial_tracks" in paths
+        assert f"/world/{name}/camera/rgb/found/fiducial_tracks" in paths
         assert f"/world/{name}/corrected_camera" in paths
 
 

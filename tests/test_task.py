@@ -158,8 +158,8 @@ def test_episode_reports_the_task(default_run):
     paths = set(RrdReader(out / "run.rrd").store().schema().entity_paths())
     assert {"/world/panel/true", "/world/panel/measured", "/task/displacement_m"} <= paths
     # the edge points the fits matched, over each camera's image
-    assert {"/world/r1/task/left", "/world/r1/task/left/panel/matched",
-            "/world/r1/task/left/slot/matched"} <= paths
+    assert {"/world/r1/camera/rgb", "/world/r1/camera/rgb/found/panel",
+            "/world/r1/camera/rgb/found/slot"} <= paths
 
 
 @pytest.mark.slow

@@ -64,6 +64,11 @@ class PoseCorrector:
         self._timer = Timer()  # wall seconds of this move's correction, by part
         self._kinds = Timer()  # ... and its frames' (and how many), by why each was taken
 
+    @property
+    def last_left(self) -> np.ndarray:
+        """The left image (h x w x 3 uint8) of the last frame taken."""
+        return self._last_left
+
     # ------------------------------------------------------------ along the move
 
     def nominal_pose(self, robot: Robot, joints: np.ndarray) -> np.ndarray:

@@ -195,7 +195,9 @@ class Episode:
         world.recorder.step(0)
         framed = framed_points(world.model, world.data, [r.body_ids for r in world.scene.robots])
         world.recorder.scene(world.model, world.data, [r.name for r in world.scene.robots],
-                             self.scenario.task.enabled, eye_position(framed, EYE_FOVY_DEG, 1.6))
+                             self.scenario.task.enabled, eye_position(framed, EYE_FOVY_DEG, 1.6),
+                             size_m=float(np.ptp(framed, axis=0).max()),
+                             image=(world.pinhole.width, world.pinhole.height))
         world.recorder.targets([t.name for t in targets], np.array([t.position for t in targets]),
                                [t.radius for t in targets])
         with Renderer(world.model, world.pinhole.width, world.pinhole.height) as renderer:

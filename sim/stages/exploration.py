@@ -110,6 +110,7 @@ def explore(world: World, renderer: Renderer) -> Survey:
                              on_view, world.model,
                              world.floor if s.search.planner_world != "model" else None).run()
     recorder.grid(world.grid)
+    recorder.mapped([r.name for r in world.scene.robots])
     return survey
 
 

@@ -74,5 +74,5 @@ def _move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector
                 else camera_pose(world.belief, robot.camera))
     world.came_to_rest(robot, believed, correction.believed_sd(prior_sd))
     timer.move(framing, "motion", "correction")
-    recorder.fiducials(robot.name, correction)
+    recorder.fiducials(robot.name, correction, corrector.last_left)
     return motion, correction

@@ -1,14 +1,19 @@
 """The rerun recording of an episode: the world and its moving bodies, cameras, images,
-depth, grid, ratings, choices, and a layout to open it on.
+depth, grid, ratings, choices, and a layout to open it on (sim/stages/record_layout.py).
 
 Entity paths: ``world/scene`` (every drawn geom under its body: sim/stages/scene_record.py),
 ``world/grid`` (the occupancy map, beside the true geometry: hide either),
-``world/targets``, ``world/<robot>/camera`` (a pinhole with ``rgb`` and ``depth`` beneath
-it), ``world/<robot>/task/left`` (its left image during the task, with the edges its fits
-matched), ``world/<robot>/candidates``, ``world/<robot>/chosen``; plots under ``mapping``
-(the region's entropy, each view's gain) and ``task`` (the measured displacement).
-Everything is on the ``step`` timeline; the robots' moves and the task are on the
-``sim_time`` timeline too. Quaternions go to rerun as x, y, z, w.
+``world/targets`` (labelled above them, under ``world/targets/labels``),
+``world/<robot>/camera`` (its pose and a pinhole; beneath it what it saw last: ``depth``
+from a mapping view, or ``rgb`` from the last frame its pose was corrected from, the
+look or a task step, and under ``rgb/found`` what was found in that image: fiducials
+and their tracks, the task's matched edges), ``world/<robot>/views`` (its latest
+mapping view, until mapping ends), ``world/<robot>/candidates`` (coloured by rating, with a legend
+beneath), ``world/<robot>/chosen`` (labelled at the camera's end); plots under
+``mapping`` (the region's entropy, each view's gain) and ``task`` (the measured
+displacement). Every 2-D entity in the world lies under a camera's pinhole. Everything
+is on the ``step`` timeline; the robots' moves and the task are on the ``sim_time``
+timeline too. Quaternions go to rerun as x, y, z, w.
 """
 
 from __future__ import annotations
@@ -19,10 +24,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 from scipy.spatial.transform import Rotation
 
 from mapping import OccupancyGrid, Pinhole, opencv_pose
+from sim.stages.record_layout import layout
 from sim.stages.scene_record import SceneGeometry, log_geometry, log_poses
 
 if TYPE_CHECKING:
@@ -37,11 +42,20 @@ if TYPE_CHECKING:
 BODY_RATE_HZ = 30.0  # moving bodies' poses are logged at most this often in simulated time
 
 
+# a viridis-like scale, low to high: dark violet, blue, teal, green, yellow (RGB)
+SCALE = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]])
+UNRATED = [110, 110, 110]  # a candidate rated 0 (its target not seen from there)
+FRUSTUM_SHARE = 0.1  # frusta are drawn this share of the scene's size (its bounding box's)
+# labels stand this share of the scene's size apart in height, so that at the opening
+# view (which frames the scene) one does not cover the next
+LABEL_SHARE = 0.08
+
+
 def _colormap(values: np.ndarray) -> np.ndarray:
-    """Blue (low) to yellow (high), uint8 RGB, for values in [0, 1]."""
-    v = np.clip(np.nan_to_num(values), 0.0, 1.0)[:, None]
-    low, high = np.array([40, 60, 200]), np.array([250, 220, 30])
-    return (low + v * (high - low)).astype(np.uint8)
+    """:data:`SCALE`'s colours (uint8 RGB) for values in [0, 1]."""
+    v = np.clip(np.nan_to_num(values), 0.0, 1.0)
+    stops = np.linspace(0.0, 1.0, len(SCALE))
+    return np.column_stack([np.interp(v, stops, SCALE[:, c]) for c in range(3)]).astype(np.uint8)
 
 
 class Recorder:
@@ -57,6 +71,9 @@ class Recorder:
         self.model: mujoco.MjModel | None = None  # the world's, once :meth:`scene` logged it
         self.geometry: SceneGeometry | None = None
         self.bodies_s = -math.inf  # the simulated time (s) the bodies were last logged at
+        self.frustum_m = 0.3  # how far frusta are drawn (m): see :meth:`scene` ...
+        self.label_m = 0.25  # ... and how far apart labels stand in height (m)
+        self.legends = 0  # the candidates' legends drawn so far
         if path is not None:
             self.rec = rr.RecordingStream("taskcam", recording_id=recording_id)
             self.rec.save(str(path))
@@ -72,17 +89,22 @@ class Recorder:
         self.step(self.steps)
 
     def scene(self, model: mujoco.MjModel, data: mujoco.MjData, robots: list[str],
-              task: bool, eye: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+              task: bool, eye: tuple[np.ndarray, np.ndarray] | None = None,
+              size_m: float | None = None, image: tuple[int, int] = (640, 480)) -> None:
         """The world's geometry and its bodies where they are now, and the layout the
         recording opens on (see :func:`layout`; ``eye``, the 3-D view's position and the
-        point it looks at); later poses come with :meth:`bodies`."""
+        point it looks at; ``image``, the cameras' width and height, px); later poses
+        come with :meth:`bodies`. Frusta are drawn :data:`FRUSTUM_SHARE` of the scene's
+        size ``size_m`` (m) long, labels stand :data:`LABEL_SHARE` of it apart."""
         if self.film is not None:
             self.film.frame(data, None)
+        if size_m is not None:
+            self.frustum_m, self.label_m = FRUSTUM_SHARE * size_m, LABEL_SHARE * size_m
         if self.rec is None:
             return
         self.model = model
         self.geometry = log_geometry(self.rec, model, data)
-        self.rec.send_blueprint(layout(robots, task, eye))
+        self.rec.send_blueprint(layout(robots, task, image, eye))
 
     def bodies(self, data: mujoco.MjData, time_s: float | None = None) -> None:
         """The moving bodies' poses now, on the timelines set (and a film's frame at
@@ -103,13 +125,28 @@ class Recorder:
             self.rec.log("mapping/region_entropy_bits", rr.Scalars(bits))
 
     def targets(self, names: list[str], positions: np.ndarray, radii: list[float]) -> None:
-        if self.rec is not None:
-            self.rec.log("world/targets", rr.Points3D(positions, radii=radii, labels=names,
-                                                      colors=[255, 60, 60]), static=True)
+        """The targets as red discs, each labelled on a stem above it: the labels stand
+        at heights ``label_m`` apart (in order along the world's x), so that targets a
+        few centimetres apart keep legible labels."""
+        if self.rec is None or not names:
+            return
+        self.rec.log("world/targets", rr.Points3D(positions, radii=radii, colors=[255, 60, 60]),
+                     static=True)
+        order = np.argsort(positions[:, 0], kind="stable")
+        lifted = positions.copy()
+        lifted[order, 2] = positions[:, 2].max() + self.label_m * np.arange(1, len(names) + 1)
+        self.rec.log("world/targets/labels",
+                     rr.Points3D(lifted, radii=0.004, labels=names, colors=[255, 60, 60]),
+                     static=True)
+        self.rec.log("world/targets/stems",
+                     rr.LineStrips3D(np.stack([positions, lifted], axis=1), radii=0.0015,
+                                     colors=[255, 60, 60, 160]), static=True)
 
     def camera(self, robot: str, T_world_mjcam: np.ndarray, pinhole: Pinhole,
                rgb: np.ndarray | None = None, depth: np.ndarray | None = None) -> None:
-        """A camera's pose and intrinsics, with what it saw."""
+        """A camera's pose and intrinsics (its frustum drawn ``frustum_m`` deep), with
+        what it saw: its ``rgb`` image (see :meth:`image`) or, without one, its ``depth``
+        (m; a mapping view's), which takes the place of the image before."""
         if self.rec is None:
             return
         T = opencv_pose(T_world_mjcam)
@@ -117,12 +154,30 @@ class Recorder:
         self.rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
         self.rec.log(path, rr.Pinhole(image_from_camera=pinhole.matrix,
                                       resolution=[pinhole.width, pinhole.height],
-                                      camera_xyz=rr.ViewCoordinates.RDF))
+                                      camera_xyz=rr.ViewCoordinates.RDF,
+                                      image_plane_distance=self.frustum_m))
         if rgb is not None:
-            self.rec.log(f"{path}/rgb", rr.Image(rgb))
-        if depth is not None:
+            self.image(robot, rgb)
+        elif depth is not None:
+            self.rec.log(f"{path}/rgb", rr.Clear(recursive=True))
             self.rec.log(f"{path}/depth", rr.DepthImage(np.where(np.isfinite(depth), depth, 0.0),
                                                         meter=1.0))
+
+    def image(self, robot: str, rgb: np.ndarray) -> None:
+        """The latest image a robot's camera took (its left one, h x w x 3 uint8), in
+        place of the one before, of what was found there and of a depth image."""
+        if self.rec is None:
+            return
+        path = f"world/{robot}/camera/rgb"
+        self.rec.log(f"world/{robot}/camera/depth", rr.Clear(recursive=False))
+        self.rec.log(f"{path}/found", rr.Clear(recursive=True))
+        self.rec.log(path, rr.Image(rgb))
+
+    def mapped(self, robots: list[str]) -> None:
+        """Mapping is over: its views' frusta go."""
+        if self.rec is not None:
+            for robot in robots:
+                self.rec.log(f"world/{robot}/views", rr.Clear(recursive=False))
 
     def grid(self, grid: OccupancyGrid) -> None:
         """Occupied voxels (P > 0.5) as boxes coloured by probability; if the recorder was
@@ -143,9 +198,11 @@ class Recorder:
 
     def view(self, robot: str, T_world_cam: np.ndarray, pinhole: Pinhole, depth: float,
              gain: float) -> None:
-        """A mapping view: its frustum (OpenCV pose) out to ``depth`` m, and its gain."""
+        """A mapping view: its frustum (OpenCV pose) out to ``depth`` m or ``frustum_m``,
+        whichever is nearer, and its gain."""
         if self.rec is None:
             return
+        depth = min(depth, self.frustum_m)
         corners = np.array([[0, 0], [pinhole.width - 1, 0], [pinhole.width - 1,
                             pinhole.height - 1], [0, pinhole.height - 1]], dtype=float)
         rays = np.column_stack([(corners[:, 0] - pinhole.cx) / pinhole.fx,
@@ -158,11 +215,34 @@ class Recorder:
             self.rec.log(f"mapping/gain_bits/{robot}", rr.Scalars(gain))
 
     def candidates(self, robot: str, positions: np.ndarray, totals: np.ndarray) -> None:
-        if self.rec is None:
+        """The rated candidates (n x 3, m; their ratings RF), coloured on :data:`SCALE`
+        by their rank among those rated above 0 (a dome of many poor views and a few good
+        ones is told apart so), those rated 0 small and grey; under
+        ``candidates/legend`` the scale as a bar above them, labelled at its ends with
+        the ratings its colours stand for (the lowest rated, the median, the best). Each
+        robot's legend stands ``label_m`` above the one before."""
+        if self.rec is None or len(totals) == 0:
             return
-        scale = totals / totals.max() if len(totals) and totals.max() > 0 else totals
+        rated = totals > 0
+        values = np.sort(totals[rated])
+        rank = (np.searchsorted(values, totals, side="left") / max(len(values) - 1, 1)
+                if len(values) else np.zeros(len(totals)))
+        colours = np.where(rated[:, None], _colormap(rank), np.array(UNRATED, np.uint8))
         self.rec.log(f"world/{robot}/candidates",
-                     rr.Points3D(positions, colors=_colormap(scale), radii=0.01))
+                     rr.Points3D(positions, colors=colours, radii=np.where(rated, 0.01, 0.004)))
+        if not len(values):
+            return
+        low, high = positions.min(axis=0), positions.max(axis=0)
+        ticks = np.linspace(0.0, 1.0, 21)
+        self.legends += 1
+        bar = np.column_stack([low[0] + ticks * max(high[0] - low[0], 6 * self.label_m),
+                               np.full_like(ticks, (low[1] + high[1]) / 2),
+                               np.full_like(ticks, high[2] + self.label_m * self.legends)])
+        labels = [""] * len(ticks)
+        labels[0] = f"{robot}: RF {values[0]:.3g} (grey: 0)"
+        labels[-1] = f"best RF {values[-1]:.3g} (median {float(np.median(values)):.3g})"
+        self.rec.log(f"world/{robot}/candidates/legend",
+                     rr.Points3D(bar, colors=_colormap(ticks), radii=0.012, labels=labels))
 
     def hulls(self, robot: str, hulls: list) -> None:
         """The expanded occluder hulls the chosen target was rated against."""
@@ -187,11 +267,16 @@ class Recorder:
         self.rec.log(f"world/{robot}/camera", rr.Transform3D(translation=T[:3, 3],
                                                              mat3x3=T[:3, :3]))
 
-    def fiducials(self, robot: str, correction: Correction) -> None:
+    def fiducials(self, robot: str, correction: Correction,
+                  image: np.ndarray | None = None) -> None:
         """The fiducials a camera's pose was corrected from: 3-sigma covariance ellipsoids
-        in the world, their tracks through the move over the camera's last image, and
-        the corrected camera pose."""
-        if self.rec is None or not correction.used:
+        in the world, their tracks through the move over the final frame's left
+        ``image`` (the camera's latest), and the corrected camera pose."""
+        if self.rec is None:
+            return
+        if image is not None:
+            self.image(robot, image)
+        if not correction.used:
             return
         centres, halves, quats = [], [], []
         for f in correction.used:
@@ -205,10 +290,10 @@ class Recorder:
                      rr.Ellipsoids3D(centers=centres, half_sizes=halves, quaternions=quats,
                                      colors=[240, 80, 200]))
         # thin, so that the image stays visible beneath
-        self.rec.log(f"world/{robot}/camera/rgb/fiducials",
+        self.rec.log(f"world/{robot}/camera/rgb/found/fiducials",
                      rr.Points2D([f.pixel for f in correction.used], radii=1.5,
                                  colors=[240, 80, 200]))
-        self.rec.log(f"world/{robot}/camera/rgb/fiducial_tracks",
+        self.rec.log(f"world/{robot}/camera/rgb/found/fiducial_tracks",
                      rr.LineStrips2D([np.array(f.track) for f in correction.used],
                                      radii=0.5, colors=[240, 80, 200, 160]))
         if correction.pose is not None:
@@ -240,29 +325,27 @@ class Recorder:
 
     def task_view(self, time_s: float, cameras: list[Camera], pairs: dict[str, Any],
                   fits: dict[str, Relative]) -> None:
-        """Each camera's left image during the task (``world/<robot>/task/left``, on the
-        ``sim_time`` timeline) with the edge points its fits matched: the panel's in
-        yellow, the slot's walls' in cyan (they lie on the fitted models' edges)."""
+        """Each camera's left image during the task (its latest, on the ``sim_time``
+        timeline too) with the edge points its fits matched, under ``rgb/found``: the
+        panel's in yellow, the slot's walls' in cyan (they lie on the fitted models'
+        edges)."""
         if self.rec is None:
             return
         self.rec.set_time("sim_time", duration=time_s)
         for cam in cameras:
             name = cam.robot.name
             pair = pairs.get(name)
-            path = f"world/{name}/task/left"
             if pair is None or isinstance(pair, str):
                 continue
-            self.rec.log(path, rr.Image(pair.left))
+            self.image(name, pair.left)
             found = fits.get(name)
             for part, fit, colour in (("panel", None if found is None else found.object_fit,
                                        [250, 220, 40]),
                                       ("slot", None if found is None else found.goal_fit,
                                        [40, 220, 250])):
-                if fit is None or not fit.matched:
-                    self.rec.log(f"{path}/{part}", rr.Clear(recursive=True))
-                    continue
-                self.rec.log(f"{path}/{part}/matched",
-                             rr.Points2D(fit.matched[0], radii=0.8, colors=colour))
+                if fit is not None and fit.matched:
+                    self.rec.log(f"world/{name}/camera/rgb/found/{part}",
+                                 rr.Points2D(fit.matched[0], radii=0.8, colors=colour))
 
     def planned_path(self, robot: str, base: np.ndarray, camera: np.ndarray) -> None:
         """A planned move: its base's way on the floor (k, 2; m) and its camera's (n, 3)."""
@@ -274,10 +357,17 @@ class Recorder:
                                                                       colors=[150, 90, 230]))
 
     def chosen(self, robot: str, position: np.ndarray, target: np.ndarray, label: str) -> None:
-        if self.rec is not None:
-            self.rec.log(f"world/{robot}/chosen",
-                         rr.Arrows3D(origins=[position], vectors=[target - position],
-                                     labels=[label], colors=[60, 220, 90]))
+        """The placement chosen: an arrow from the camera's ``position`` to its
+        ``target`` (m), labelled ``<robot> -> <label>`` at the camera's end, away from
+        the targets' own labels."""
+        if self.rec is None:
+            return
+        self.rec.log(f"world/{robot}/chosen",
+                     rr.Arrows3D(origins=[position], vectors=[target - position],
+                                 colors=[60, 220, 90]))
+        self.rec.log(f"world/{robot}/chosen/label",
+                     rr.Points3D([position], radii=0.004, labels=[f"{robot} -> {label}"],
+                                 colors=[20, 120, 40]))  # dark: legible on a label's grey
 
     def close(self) -> None:
         if self.film is not None:
@@ -287,36 +377,3 @@ class Recorder:
             self.rec.flush()
             self.rec.disconnect()
             self.rec = None
-
-
-def layout(robots: list[str], task: bool, eye: tuple[np.ndarray, np.ndarray] | None = None
-           ) -> rrb.Blueprint:
-    """The layout a recording opens on: the 3-D world large (seen from ``eye``: its
-    position and the point it looks at, m; the depth images, drawn there as point clouds,
-    left out); beside it each robot's left image with what was found in it (during the
-    task, its fitted edges; else the fiducials of its pose correction); below, the
-    mapped region's entropy and the task's displacement. It opens on the ``step``
-    timeline, where both plots have their data (each mapping view and each task step is
-    a step; the moves play on ``sim_time``); the occupancy grid, the rated candidates and
-    the occluder hulls start hidden."""
-    image = "task/left" if task else "camera/rgb"
-    cameras = [rrb.Spatial2DView(origin=f"world/{r}/{image}", name=f"{r}: left image")
-               for r in robots]
-    controls = None if eye is None else rrb.EyeControls3D(
-        kind=rrb.Eye3DKind.Orbital, position=eye[0], look_target=eye[1], eye_up=[0.0, 0.0, 1.0])
-    world = rrb.Spatial3DView(origin="world", name="world", eye_controls=controls,
-                              contents=["+ $origin/**",
-                                        *(f"- world/{r}/camera/depth" for r in robots)],
-                              # the map and the ratings hide the scene: shown on request
-                              overrides={path: rrb.EntityBehavior(visible=False) for path in
-                                         ["world/grid", *(f"world/{r}/{part}" for r in robots
-                                                          for part in ("candidates", "hulls"))]})
-    plots = rrb.Horizontal(
-        rrb.TimeSeriesView(origin="mapping/region_entropy_bits",
-                           name="mapping: the region's entropy (bits a voxel)"),
-        rrb.TimeSeriesView(origin="task", name="task: displacement, measurement error (m)"))
-    return rrb.Blueprint(
-        rrb.Vertical(rrb.Horizontal(world, rrb.Vertical(*cameras), column_shares=[3, 1]),
-                     plots, row_shares=[3, 1]),
-        rrb.TimePanel(timeline="step"),
-        collapse_panels=True)
