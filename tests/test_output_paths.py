@@ -6,6 +6,8 @@ regular file, under ``/proc``."""
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -77,18 +79,50 @@ def test_a_run_directory_whose_files_cannot_be_written_is_refused(tmp_path):
     assert code == 2 and "episode.mp4 is a directory" in err
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes through permission bits")
-def test_a_read_only_directory_is_refused(tmp_path):
-    folder = tmp_path / "ro"
-    folder.mkdir()
-    folder.chmod(0o555)
+def checked_as_user(folder: Path) -> list[str]:
+    """Each check's verdict on a run directory and a database file in ``folder``, made
+    in a forked process as the user; as root (who writes through permission bits), as
+    the unprivileged user ``nobody``."""
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: drop root, check, report, leave without cleaning up
+        try:
+            if os.geteuid() == 0:
+                os.setgid(65534)
+                os.setuid(65534)
+            verdicts = []
+            for check, path in ((check_directory, folder / "run"),
+                                (check_file, folder / "r.sqlite")):
+                try:
+                    check("--out", path)
+                    verdicts.append("passed")
+                except OutputPathError as exc:
+                    verdicts.append(str(exc))
+            os.write(write, "\n".join(verdicts).encode())
+        finally:
+            os._exit(0)
+    os.close(write)
+    with os.fdopen(read) as f:
+        out = f.read()
+    os.waitpid(pid, 0)
+    return out.splitlines()
+
+
+def test_a_read_only_directory_is_refused():
+    """A folder the user may not write into is refused, and one beside it that the user
+    may write into passes."""
+    top = Path(tempfile.mkdtemp(dir="/tmp"))
     try:
-        with pytest.raises(OutputPathError, match="Permission denied"):
-            check_directory("--out", folder / "run")
-        with pytest.raises(OutputPathError, match="Permission denied"):
-            check_file("--db", folder / "r.sqlite")
+        top.chmod(0o755)
+        read_only, writable = top / "ro", top / "rw"
+        read_only.mkdir(mode=0o555)
+        writable.mkdir()
+        writable.chmod(0o777)
+        refused = checked_as_user(read_only)
+        assert len(refused) == 2 and all("Permission denied" in line for line in refused)
+        assert checked_as_user(writable) == ["passed", "passed"]
     finally:
-        folder.chmod(0o755)
+        shutil.rmtree(top, ignore_errors=True)
 
 
 def test_a_check_leaves_nothing_behind(tmp_path):
