@@ -28,21 +28,17 @@ from typing import Any
 
 import mujoco
 import numpy as np
-from ompl import base as ob
-from ompl import geometric as og
-from ompl import util as ou
-from scipy.spatial import cKDTree
 
-from mapping import FloorMap, OccupancyGrid, drive_lengths
+from mapping import FloorMap, OccupancyGrid
 from sim.world.arm import Arm, scene_arm
 from sim.world.base_scanner import SCAN_HEIGHT_M
 from sim.world.collision import KeepOut, Proximity
 from sim.world.ik import IKResult, IKSettings, solve_camera_pose
 from sim.world.mapped_obstacles import MapFields, left_to_map, map_fields, robot_spheres
 from sim.world.motion import dense_path
+from sim.world.rrt import rrt_connect
 from sim.world.scene import Robot, Scene
-
-ou.setLogLevel(ou.LOG_NONE)
+from sim.world.standing import STAND_CELL_M, Places, Stands, clear_places, ranked_stands
 
 # The goal's IK from a stand of the capability map: the base stays about where the seed
 # put it (its posture costs 100 times the arm's) and the arm reaches
@@ -58,15 +54,9 @@ SEED_APART_M = 0.25
 # ... and where the robot stands: the map's seeds for the pose from there (its cell's and
 # the nearest directions')
 HERE_SEEDS = 2
-# Stands are taken side by side round the camera, behind it (as seen from the target)
-# first, in sides this wide (deg): the sides a stand-off from behind turns through
-STAND_SIDE_DEG = 30.0
-# A base turns 1 rad in the time it drives this far (m): its speeds, 0.5 m/s and 1 rad/s
-BASE_M_PER_RAD = 0.5
 # How far a base may drive to a view by default (m, along its way): it may cross the
 # room it has mapped, the default grid's 3 m square walked round half its edge (6 m)
 DRIVE_M = 6.0
-STAND_CELL_M = 0.1  # the grid of places a base may stand on (m), see ArmPlanner.places
 ARM_SWING_RAD = math.pi / 2  # see ArmPlanner._bounds
 # RRT-Connect's longest step (joint space, m and rad): a tree grows in steps short
 # enough that a blocked one wastes few checks (its default, a fifth of the space's
@@ -99,49 +89,6 @@ class Plan:
                     "base_turn_rad": round(float(np.abs(steps[:, 2]).sum()), 4),
                     "arm_path_rad": round(float(np.linalg.norm(steps[:, 3:], axis=1).sum()), 4)}
         return out
-
-
-@dataclass(frozen=True)
-class Places:
-    """Where a robot's base can get to: a raster of cells ``cell_m`` wide, the first's
-    centre at ``origin`` (x, y; m), each holding the shortest drive there (m; inf where
-    it cannot get, or not within the limit)."""
-
-    origin: np.ndarray
-    cell_m: float
-    drive: np.ndarray  # (nx, ny)
-    xy: np.ndarray = field(init=False)  # (n, 2) the centres of the cells it gets to
-    drive_m: np.ndarray = field(init=False)  # (n,) and the drive to each
-    tree: cKDTree = field(init=False)
-
-    def __post_init__(self) -> None:
-        cells = np.argwhere(np.isfinite(self.drive))
-        object.__setattr__(self, "xy", self.origin + cells * self.cell_m)
-        object.__setattr__(self, "drive_m", self.drive[tuple(cells.T)])
-        object.__setattr__(self, "tree", cKDTree(self.xy.reshape(-1, 2)))
-
-    def within(self, xy: np.ndarray, radius_m: float) -> np.ndarray:
-        """Indices into ``xy`` of the places within ``radius_m`` of a point (x, y; m)."""
-        return np.array(sorted(self.tree.query_ball_point(xy, radius_m)), int)
-
-    def reached(self, xy: np.ndarray) -> bool:
-        """Is the base at ``xy`` (m) on a place it gets to, or on a cell beside one (the
-        raster's resolution: between cell centres the base is as clear as at them)?"""
-        i, j = np.floor((xy - self.origin) / self.cell_m).astype(int)
-        window = self.drive[max(i, 0):i + 2, max(j, 0):j + 2]
-        return bool(np.isfinite(window).any())
-
-
-@dataclass(frozen=True)
-class Stands:
-    """Base poses from which the arm reaches one camera pose, nearest drive first: the
-    base's place (n, 2; m) and yaw (n,; rad), the arm's seed joints (n, 6; rad) and the
-    drive to each (n,; m)."""
-
-    xy: np.ndarray
-    yaw: np.ndarray
-    joints: np.ndarray
-    drive_m: np.ndarray
 
 
 class ArmPlanner:
@@ -220,31 +167,12 @@ class ArmPlanner:
         return self._standing[key]
 
     def _places(self, robot: Robot) -> Places:
-        home = self.scene.start_qpos[robot.qpos_adr]
         here = self.belief.qpos[robot.qpos_adr[:3]]
-        lo, hi = self.room if self.room is not None else (here[:2] - self.drive_m,
-                                                          here[:2] + self.drive_m)
-        lo = np.maximum(lo, here[:2] - self.drive_m)  # no farther than the drive
-        hi = np.minimum(hi, here[:2] + self.drive_m)
-        xs = np.arange(lo[0] + STAND_CELL_M / 2, hi[0], STAND_CELL_M)
-        ys = np.arange(lo[1] + STAND_CELL_M / 2, hi[1], STAND_CELL_M)
-        clear = np.zeros((len(xs), len(ys)), bool)
+        room = self.room if self.room is not None else (here[:2] - self.drive_m,
+                                                        here[:2] + self.drive_m)
         self._scratch.qpos[:] = self.belief.qpos
-        q = home.copy()
-        for i, j in np.ndindex(clear.shape):
-            if math.hypot(xs[i] - here[0], ys[j] - here[1]) > self.drive_m:
-                continue  # farther than any drive
-            q[:2] = xs[i], ys[j]
-            clear[i, j] = any(self._clear(robot, q, self.clearance_m) for q[2] in
-                              here[2] + np.arange(4) * math.pi / 2)
-        origin = np.array([xs[0] if len(xs) else lo[0], ys[0] if len(ys) else lo[1]])
-        drive = np.full(clear.shape, np.inf)
-        if clear.any():  # from the clear cell nearest the robot
-            cells = np.argwhere(clear)
-            start = cells[np.argmin(np.hypot(*(origin + cells * STAND_CELL_M - here[:2]).T))]
-            drive = drive_lengths(clear, (int(start[0]), int(start[1])), STAND_CELL_M,
-                                  self.drive_m)
-        return Places(origin, STAND_CELL_M, drive)
+        return clear_places(lambda q: self._clear(robot, q, self.clearance_m),
+                            self.scene.start_qpos[robot.qpos_adr], here, room, self.drive_m)
 
     def stands(self, robot: Robot, look_at: np.ndarray, position: np.ndarray) -> Stands:
         """Where the base can stand to put the camera at ``position`` looking at
@@ -252,25 +180,8 @@ class ArmPlanner:
         capability map reaches the pose, behind the camera first, then the quickest to
         get to (the drive and the turn), with the base's yaw and the arm's joints of the
         map's seed (inverse reachability)."""
-        places = self.places(robot)
-        direction = np.asarray(look_at, float) - position
-        direction = direction / max(float(np.linalg.norm(direction)), 1e-12)
-        near = places.within(position[:2], self.arm.reach_m)
-        ok, yaw, joints = self.arm.reach.stands(position, direction, places.xy[near])
-        near, yaw = near[ok], yaw[ok]
-        # behind the camera as seen from the target first, the arm out of the views (its
-        # own and the others': the task's panel comes from the target's side), by sides
-        # STAND_SIDE_DEG wide; on each side the quickest first: the drive and the base's
-        # turn, at the base's speeds
-        back = np.arctan2(*(position[1::-1] - np.asarray(look_at, float)[1::-1]))
-        side = np.arctan2(places.xy[near, 1] - position[1], places.xy[near, 0] - position[0])
-        off = np.abs(np.mod(side - back + math.pi, 2 * math.pi) - math.pi)
-        turn = np.abs(np.mod(yaw - self.belief.qpos[robot.qpos_adr[2]] + math.pi, 2 * math.pi)
-                      - math.pi)
-        order = np.lexsort((places.drive_m[near] + turn * BASE_M_PER_RAD,
-                            np.round(np.degrees(off) / STAND_SIDE_DEG)))
-        return Stands(places.xy[near][order], yaw[order], joints[ok][order],
-                      places.drive_m[near][order])
+        return ranked_stands(self.places(robot), self.arm, look_at, position,
+                             float(self.belief.qpos[robot.qpos_adr[2]]))
 
     def may_stand(self, robot: Robot, positions: np.ndarray) -> np.ndarray:
         """For camera positions (n, 3; m): could the arm reach each from a place the base
@@ -430,52 +341,13 @@ class ArmPlanner:
 
     def _search(self, robot: Robot, start: np.ndarray, goal: np.ndarray, active: list[int],
                 spent: list[int]) -> np.ndarray | None:
-        """OMPL's RRT-Connect from ``start`` to ``goal`` (9 joints each) over the joints
-        ``active`` (the others held as at ``start``), until ``spent`` reaches the
-        budget; the path found, its waypoints reduced by OMPL's simplifier, or None."""
-        # RRT-Connect waits for a valid goal until the termination condition, and ours
-        # counts validity checks, which waiting does not spend: an invalid goal would hang
-        spent[0] += 1
-        if not self._valid(robot, goal, self.clearance_m):
-            return None
+        """RRT-Connect (sim/world/rrt.py) from ``start`` to ``goal`` (9 joints each) over
+        the joints ``active`` (the others held as at ``start``), until ``spent`` reaches
+        the budget; the path found or None."""
         lo, hi = self._bounds(robot, start, goal)
-        space = ob.RealVectorStateSpace(len(active))
-        bounds = ob.RealVectorBounds(len(active))
-        for i, j in enumerate(active):
-            bounds.setLow(i, float(lo[j]))
-            bounds.setHigh(i, float(hi[j]))
-        space.setBounds(bounds)
-        ou.RNG.setSeed(int(self.rng.integers(1, 2 ** 31 - 1)))  # before the planner's RNGs
-        setup = og.SimpleSetup(space)
-
-        def joints_of(state: Any) -> np.ndarray:
-            q = start.copy()
-            q[active] = [state[i] for i in range(len(active))]
-            return q
-
-        def valid(state: Any) -> bool:
-            spent[0] += 1
-            return self._valid(robot, joints_of(state), self.clearance_m)
-
-        def state(q: np.ndarray) -> Any:
-            x = space.allocState()
-            for i, j in enumerate(active):
-                x[i] = float(q[j])
-            return x
-
-        setup.setStateValidityChecker(valid)
-        info = setup.getSpaceInformation()
-        info.setStateValidityCheckingResolution(CHECK_STEP / space.getMaximumExtent())
-        setup.setStartAndGoalStates(state(start), state(goal))
-        planner = og.RRTConnect(info)
-        planner.setRange(STEP_RANGE)
-        setup.setPlanner(planner)
-        setup.solve(ob.PlannerTerminationCondition(lambda: spent[0] >= self.checks))
-        if not setup.haveExactSolutionPath():
-            return None
-        found = setup.getSolutionPath()
-        setup.getPathSimplifier().simplifyMax(found)  # OMPL's shortcutting, as short as it gets
-        return np.array([joints_of(found.getState(k)) for k in range(found.getStateCount())])
+        return rrt_connect(lambda q: self._valid(robot, q, self.clearance_m), start, goal,
+                           active, lo, hi, self.rng, spent, self.checks, CHECK_STEP,
+                           STEP_RANGE)
 
     def _bounds(self, robot: Robot, start: np.ndarray, goal: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
