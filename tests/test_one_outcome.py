@@ -199,12 +199,21 @@ enabled = true
 """
 
 
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+
+
 @pytest.mark.slow
-def test_a_three_robot_run_tells_one_outcome(tmp_path):
+@pytest.mark.parametrize(("scenario", "not_placed", "of"), [
+    pytest.param(THREE, ["r3"], 3, id="three robots, one out of reach"),
+    pytest.param(SCENARIOS / "menagerie_ur5e.toml", [], 2, id="menagerie ur5e"),
+])
+def test_a_run_tells_one_outcome(tmp_path, scenario, not_placed, of):
     """The screen's lines and the data overview.png is drawn from, held to summary.json
-    and scene.xml, in a scene with a robot that cannot be placed."""
-    scenario = tmp_path / "three.toml"
-    scenario.write_text(THREE)
+    and scene.xml: in a scene with a robot that cannot be placed, and in the shipped
+    scenario whose arms are Menagerie's UR5e."""
+    if isinstance(scenario, str):
+        (tmp_path / "three.toml").write_text(scenario)
+        scenario = tmp_path / "three.toml"
     out = tmp_path / "run"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     done = subprocess.run([str(TASKCAM), "run", str(scenario), "--out", str(out)],
@@ -213,14 +222,14 @@ def test_a_three_robot_run_tells_one_outcome(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     robots = summary["robots"]
     placed = [r["name"] for r in robots if r["placed"]]
-    assert summary["placed"] == {"count": len(placed), "of": 3, "robots": placed,
+    assert summary["placed"] == {"count": len(placed), "of": of, "robots": placed,
                                  "not_placed": [r["name"] for r in robots if not r["placed"]]}
-    assert "r3" in summary["placed"]["not_placed"]
+    assert summary["placed"]["not_placed"] == not_placed
     # the screen: the table is the summary's, the stage lines say the same
     assert done.stdout == outcome(summary, out / "run.rrd")
     stages = done.stderr
     assert f"taskcam: {placed_line(robots)}\n" in stages and placed_line(robots) in done.stdout
-    assert "placed: 2 of 3 robots" in stages
+    assert f"placed: {of - len(not_placed)} of {of} robots" in stages
     for robot in robots:
         first = robot["placements"][0]
         assert f"taskcam: {placement_line(robot['name'], first)}\n" in stages
@@ -247,9 +256,12 @@ def test_a_three_robot_run_tells_one_outcome(tmp_path):
         camera = data.cam(f"{mark.name}/left")
         assert np.allclose(mark.T_world_cam[:3, 3], camera.xpos, atol=1e-4)
         assert mark.rgba == (PLACED_RGBA if mark.placed else UNPLACED_RGBA)
-        assert (mark.base[0], mark.base[1]) == pytest.approx(
-            tuple(final[model.jnt_qposadr[model.joint(f"{mark.name}/base_x").id]:][:2]),
-            abs=1e-5)
+        assert mark.base == pytest.approx(tuple(
+            final[model.jnt_qposadr[model.joint(f"{mark.name}/{joint}").id]]
+            for joint in ("base_x", "base_y", "base_yaw")), abs=1e-5)
+    # the targets it labels: those the placed robots ended viewing, in summary.json's roles
+    assert [t.label for t in target_marks(summary)] == list(dict.fromkeys(
+        f"{r['target']['name']} ({r['target']['role']})" for r in robots if r["placed"]))
 
 
 @pytest.mark.slow
