@@ -136,9 +136,11 @@ def sweep(args: argparse.Namespace) -> int:
         done = run_sweep(spec, args.db, args.workers, args.scheduler, args.resume)
     except ResultsError as exc:
         raise exc.given_as("--db") from None
-    _log(f"{done.ran} trial(s) run in {done.seconds:.0f} s, {done.already} found done; "
-         f"{done.already + done.ran} of {done.total} in {args.db}")
-    return EXIT_OK
+    _log(f"{done.ran} trial(s) run in {done.seconds:.0f} s, {done.already} found done, "
+         f"{done.failed} failed; {done.already + done.ran} of {done.total} in {args.db}"
+         + (" (`taskcam report` lists the failed; --resume runs them again)"
+            if done.failed else ""))
+    return EXIT_FAILURE if done.failed else EXIT_OK
 
 
 def report(args: argparse.Namespace) -> int:

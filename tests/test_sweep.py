@@ -23,7 +23,7 @@ from sim.config.sweep import load_sweep
 from sim.experiments.report import cells, markdown, report, wilson
 from sim.experiments.results import Results
 from sim.experiments.runner import _on_pool, run_sweep, trial_specs
-from sim.experiments.trial import run_trial
+from sim.experiments.trial import CRASH_TRIAL_ENV, run_trial
 
 TINY = (SCENARIO_DIR / "smoke.toml").read_text()
 TABLES = ("trials", "outcomes", "successes")
@@ -134,6 +134,55 @@ def test_a_worker_that_dies_is_replaced_and_its_trials_run_again(tiny, reference
     assert proc.returncode == 0, stderr
     assert "a worker process died" in stderr
     assert rows(db) == reference
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", [2, 1])
+def test_a_trial_that_always_crashes_is_stored_as_failed_and_the_sweep_goes_on(
+        tiny, reference, tmp_path, monkeypatch, capsys, workers):
+    """One trial's process dies by SIGSEGV every time (the test hook in the trial): it is
+    stored as failed with the reason, every other row is the uninterrupted sweep's, the
+    final line counts it, the exit status is 1 and the report lists it; a resume without
+    the crash runs it again and leaves the rows of an uninterrupted sweep."""
+    db = tmp_path / "crash.sqlite"
+    monkeypatch.setenv(CRASH_TRIAL_ENV, "1,0")
+    assert main(["sweep", str(tiny), "--db", str(db), "--workers", str(workers)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "a worker process died" in "\n".join(err)
+    assert "2 trial(s) run" not in err[-1] and "0 found done, 1 failed; 3 of 4" in err[-1]
+    seed = next(r[2] for r in reference["trials"] if r[:2] == (1, 0))
+    with Results(db) as r:
+        assert r.failures() == [(1, 0, seed, 0.2, 3, "worker died with SIGSEGV, 3 times")]
+    assert rows(db) == {t: [r for r in reference[t] if r[:2] != (1, 0)] for t in TABLES}
+    assert main(["report", str(db), "--out", str(tmp_path / "out")]) == 0
+    assert (f"- trial 0 at 20 % (density index 1, seed {seed}): worker died with SIGSEGV, "
+            "3 times") in capsys.readouterr().out
+    monkeypatch.delenv(CRASH_TRIAL_ENV)
+    assert main(["sweep", str(tiny), "--db", str(db), "--workers", str(workers),
+                 "--resume"]) == 0
+    assert "1 trial(s) run" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert rows(db) == reference
+    with Results(db) as r:
+        assert r.failures() == []
+
+
+def test_a_failed_trial_is_stored_apart_and_leaves_when_the_trial_is(tmp_path):
+    """A failure is stored per trial (a second replaces the first), is not done, and
+    leaves when the trial's record is stored; a database without the table has none."""
+    sweep = load_sweep(SCENARIO_DIR / "smoke.toml")
+    record = {"density_index": 0, "trial": 1, "seed": 5, "density": 0.05,
+              "achieved_density": 0.05, "obstacles": 2, "timings_s": {"total": 1.0},
+              "methods": []}
+    with Results(tmp_path / "r.sqlite") as r:
+        r.db.execute("DROP TABLE IF EXISTS failed")
+        assert r.failures() == []
+        r.start(sweep.describe(), resume=False)
+        r.add_failure(0, 1, 5, 0.05, 3, "worker died with SIGSEGV, 3 times")
+        r.add_failure(0, 1, 5, 0.05, 3, "worker died with SIGABRT, 3 times")
+        assert r.failures() == [(0, 1, 5, 0.05, 3, "worker died with SIGABRT, 3 times")]
+        assert r.done() == set()
+        r.add(record)
+        assert r.failures() == [] and r.done() == {(0, 1)}
 
 
 @pytest.mark.slow

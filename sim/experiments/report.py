@@ -149,6 +149,22 @@ def step_limit_markdown(limits: dict[tuple[str, float], tuple[int, int]]) -> str
             + "; ".join(f"{m} {', '.join(v)}" for m, v in by_method.items()) + "\n")
 
 
+def failed_trials(db: str | Path) -> list[tuple[int, int, int, float, int, str]]:
+    """The trials stored as failed (their worker died every time): density index, trial,
+    seed, requested density, attempts, reason."""
+    with Results(db, readonly=True) as results:
+        return results.failures()
+
+
+def failed_markdown(failed: list[tuple[int, int, int, float, int, str]]) -> str:
+    """The failed trials, each with why (they count in no table above)."""
+    if not failed:
+        return ""
+    return (f"Failed trials, in no table above: {len(failed)}\n\n"
+            + "".join(f"- trial {trial} at {100 * density:g} % (density index {d}, seed "
+                      f"{seed}): {reason}\n" for d, trial, seed, density, _, reason in failed))
+
+
 def bands_markdown(bands: dict[float, list[float]]) -> str:
     """The blocked share per elevation band, a row per requested density."""
     if not bands:
@@ -382,8 +398,8 @@ def report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:
     folder = Path(out) if out is not None else db.parent
     folder.mkdir(parents=True, exist_ok=True)
     text = markdown(table)
-    for extra in (step_limit_markdown(step_limit(db)), bands_markdown(elevation_bands(db)),
-                  views_markdown(camera_views(db))):
+    for extra in (failed_markdown(failed_trials(db)), step_limit_markdown(step_limit(db)),
+                  bands_markdown(elevation_bands(db)), views_markdown(camera_views(db))):
         if extra:
             text += "\n" + extra
     ordered = claims.markdown(tested)

@@ -9,6 +9,10 @@ Tables:
   record (JSON).
 - ``outcomes``: one row per scene and method: placement, secondary targets allowed,
   final displacement, task steps, and ``success`` per tolerance in ``successes``.
+- ``failed``: one row per scene whose worker died every time it ran it: its seed,
+  requested density, how many times it ran and why it failed. Written by the sweeps
+  that have it (a database from before reads as having none); a trial stored later
+  leaves it.
 
 Everything a table needs is in ``outcomes`` and ``successes``; the ``record`` column
 keeps the rest, so tables can be recomputed without rerunning anything.
@@ -41,6 +45,13 @@ CREATE TABLE IF NOT EXISTS successes (
     tolerance REAL NOT NULL, success INTEGER NOT NULL,
     PRIMARY KEY (density_index, trial, method, tolerance));
 """
+
+# Optional: not in TABLES, so that databases written before it are still read.
+FAILED_SCHEMA = """
+CREATE TABLE IF NOT EXISTS failed (
+    density_index INTEGER NOT NULL, trial INTEGER NOT NULL, seed INTEGER NOT NULL,
+    density REAL NOT NULL, attempts INTEGER NOT NULL, reason TEXT NOT NULL,
+    PRIMARY KEY (density_index, trial))"""
 
 
 SQLITE_HEADER = b"SQLite format 3\x00"
@@ -180,8 +191,9 @@ class Results:
         problem = self.refusal(description, resume)
         if problem is not None:
             raise problem
-        if self.description() is None:
-            with self.db:
+        with self.db:
+            self.db.execute(FAILED_SCHEMA)
+            if self.description() is None:
                 self.db.execute("INSERT INTO sweep VALUES ('description', ?)",
                                 (json.dumps(description, sort_keys=True),))
 
@@ -199,8 +211,25 @@ class Results:
         return None
 
     def done(self) -> set[tuple[int, int]]:
-        """(density index, trial) of every trial stored."""
+        """(density index, trial) of every trial stored (failed trials are not done)."""
         return {(d, t) for d, t in self.db.execute("SELECT density_index, trial FROM trials")}
+
+    def failures(self) -> list[tuple[int, int, int, float, int, str]]:
+        """(density index, trial, seed, density, attempts, reason) of every failed trial,
+        in key order; none in a database from before failures were stored."""
+        if self.db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' "
+                           "AND name = 'failed'").fetchone() is None:
+            return []
+        return list(self.db.execute("SELECT * FROM failed ORDER BY density_index, trial"))
+
+    def add_failure(self, density_index: int, trial: int, seed: int, density: float,
+                    attempts: int, reason: str) -> None:
+        """Store a trial that could not be run (its worker died every time), in place of
+        an earlier failure of it."""
+        with self.db:
+            self.db.execute(FAILED_SCHEMA)
+            self.db.execute("INSERT OR REPLACE INTO failed VALUES (?, ?, ?, ?, ?, ?)",
+                            (density_index, trial, seed, density, attempts, reason))
 
     # ------------------------------------------------------------ trials
 
@@ -208,6 +237,8 @@ class Results:
         """Store one trial and its outcomes, all or nothing."""
         key = (record["density_index"], record["trial"])
         with self.db:
+            self.db.execute(FAILED_SCHEMA)  # a trial that failed before leaves it
+            self.db.execute("DELETE FROM failed WHERE density_index = ? AND trial = ?", key)
             self.db.execute(
                 "INSERT INTO trials VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 (*key, record["seed"], record["density"], record["achieved_density"],
@@ -240,8 +271,11 @@ class Results:
                      "record FROM trials ORDER BY density_index, trial")
             return [(*row[:-1], _without_timings(json.loads(row[-1])))
                     for row in self.db.execute(query)]
+        if table == "failed":
+            return list(self.failures())
         if table not in ("outcomes", "successes"):
-            raise ResultsError(self.path, f"no table {table!r}", "trials, outcomes, successes")
+            raise ResultsError(self.path, f"no table {table!r}",
+                               "trials, outcomes, successes, failed")
         return list(self.db.execute(f"SELECT * FROM {table} ORDER BY 1, 2, 3, 4"))
 
 

@@ -20,6 +20,7 @@ import dataclasses
 import functools
 import os
 import resource
+import signal
 import time
 import zlib
 from dataclasses import dataclass
@@ -106,9 +107,16 @@ def _correction(c: dict[str, Any]) -> dict[str, Any]:
             "sd": c.get("sd")}
 
 
+# For tests of crash handling only: set to "DENSITY_INDEX,TRIAL" (e.g. "1,0"), the process
+# that runs that trial kills itself with SIGSEGV, as a native crash would. Unset: inert.
+CRASH_TRIAL_ENV = "TASKCAM_TEST_CRASH_TRIAL"
+
+
 def run_trial(spec: TrialSpec) -> dict[str, Any]:
     """Generate, map once, run every method; the trial's record. An error names the
     trial (density, index, seed), so that it can be run again alone."""
+    if os.environ.get(CRASH_TRIAL_ENV) == f"{spec.density_index},{spec.trial}":
+        os.kill(os.getpid(), signal.SIGSEGV)
     try:
         return _run_trial(spec)
     except Exception as exc:
