@@ -166,6 +166,26 @@ def test_a_trial_that_always_crashes_is_stored_as_failed_and_the_sweep_goes_on(
         assert r.failures() == []
 
 
+@pytest.mark.slow
+def test_a_trial_that_kills_its_dask_workers_is_stored_as_failed(tiny, reference, tmp_path,
+                                                                  monkeypatch, capsys):
+    """On Dask, the task whose worker died runs again on another (Dask's own retries);
+    one that kills every worker it runs on is stored as failed and the sweep goes on."""
+    from distributed import LocalCluster
+
+    db = tmp_path / "dask_crash.sqlite"
+    monkeypatch.setenv(CRASH_TRIAL_ENV, "0,1")  # the workers inherit it
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:
+        assert main(["sweep", str(tiny), "--db", str(db), "--scheduler",
+                     cluster.scheduler_address]) == 1
+    assert "1 failed; 3 of 4" in capsys.readouterr().err.strip().splitlines()[-1]
+    with Results(db) as r:
+        [(d, trial, _, _, runs, reason)] = r.failures()
+    assert (d, trial, runs) == (0, 1, 4) and reason.startswith("Dask workers died running it")
+    assert rows(db) == {t: [r for r in reference[t] if r[:2] != (0, 1)] for t in TABLES}
+
+
 def test_a_failed_trial_is_stored_apart_and_leaves_when_the_trial_is(tmp_path):
     """A failure is stored per trial (a second replaces the first), is not done, and
     leaves when the trial's record is stored; a database without the table has none."""
