@@ -224,7 +224,7 @@ class ArmPlanner:
             if apart.min() < clearance_m:
                 return False
         if self.maps is not None and self.maps.clearance(
-                self._spheres[robot.name], d, clearance_m) < clearance_m:  # off the maps
+                self._spheres[robot.name], d) < clearance_m:  # off what the maps hold
             return False
         return near.clear(d, clearance_m)
 
