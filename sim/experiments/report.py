@@ -1,6 +1,6 @@
 """Tables from a results database: success rates with Wilson 95 % intervals, in the
 layout of the paper's Table 1 (tolerance by placement, density by secondary targets),
-next to the paper's numbers; as Markdown, CSV and a PNG chart."""
+next to the paper's numbers; as Markdown, CSV and a PNG chart (report_chart.py)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sim.experiments.report_chart import write_chart
 from sim.experiments.results import Results, ResultsError
 
 Z95 = 1.959963984540054
@@ -317,75 +318,6 @@ def write_csv(table: list[Cell], path: Path) -> None:
                  round(100 * c.interval[1], 2), c.paper or ""] for c in table))
 
 
-# A series' look: its colour (Okabe and Ito's, told apart by colour-blind readers), its
-# line style and its marker, so that series stay apart in greyscale too.
-COLOURS = ("#000000", "#E69F00", "#0072B2", "#009E73", "#CC79A7", "#D55E00", "#56B4E9")
-DASHES: tuple[Any, ...] = ("-", "--", ":", "-.", (0, (5, 1.5, 1, 1.5, 1, 1.5)),
-                           (0, (8, 2)), (0, (1, 1)))
-MARKERS = ("o", "s", "^", "D", "v", "P", "X")
-DODGE_PCT = 0.7  # points of series at one density set apart, in density's percent
-
-
-def series_style(k: int) -> dict[str, Any]:
-    """The ``k``-th series' colour, line style and marker (matplotlib keywords): no two
-    of the first 49 share both colour and line style; odd ones have hollow markers."""
-    n = len(COLOURS)
-    colour = COLOURS[k % n]
-    return {"color": colour, "linestyle": DASHES[(k + k // n) % n],
-            "marker": MARKERS[(k + 2 * (k // n)) % n],
-            "markerfacecolor": colour if k % 2 == 0 else "white"}
-
-
-def chart(table: list[Cell]) -> Any:
-    """Success rate against density, a panel per tolerance, a line per method with the
-    Wilson intervals as error bars; each method styled as :func:`series_style` says, its
-    points set a little apart from the others' so that none hides another; a legend
-    below every panel. Returns the matplotlib figure (close it when done)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    tolerances = sorted({c.tolerance for c in table}, reverse=True)
-    fig, axes = plt.subplots(1, len(tolerances), figsize=(4.4 * len(tolerances), 4.3),
-                             sharey=True, squeeze=False)
-    series: dict[str, list[Cell]] = defaultdict(list)
-    for c in table:
-        series[c.method].append(c)
-    for ax, tol in zip(axes[0], tolerances, strict=True):
-        for k, (method, cs) in enumerate(series.items()):
-            pts = sorted((c for c in cs if c.tolerance == tol), key=lambda c: c.density)
-            if not pts:
-                continue
-            shift = (k - (len(series) - 1) / 2) * DODGE_PCT
-            x = [100 * c.density + shift for c in pts]
-            y = [100 * c.rate for c in pts]
-            err = [[100 * (c.rate - c.interval[0]) for c in pts],
-                   [100 * (c.interval[1] - c.rate) for c in pts]]
-            ax.errorbar(x, y, yerr=err, capsize=3, linewidth=1.4, markersize=5,
-                        label=method, **series_style(k))
-        ax.set_title(f"tolerance {100 * tol:g} % ({DIFFICULTY.get(tol, '')})")
-        ax.set_xlabel("occlusion density (%)")
-        ax.set_ylim(-3, 103)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.17),
-                  ncol=min(3, len(series)), frameon=False)  # below: it hides no point
-    axes[0][0].set_ylabel("task success (%)")
-    fig.tight_layout()
-    return fig
-
-
-def write_chart(table: list[Cell], path: Path) -> None:
-    """:func:`chart` as a PNG at ``path``."""
-    fig = chart(table)
-    import matplotlib.pyplot as plt
-
-    try:
-        fig.savefig(path, dpi=120)
-    finally:
-        plt.close(fig)
-
-
 def report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:
     """Write ``<db stem>.md``, ``.csv`` and ``.png`` into ``out`` (default: beside the
     database), and the paper's orderings tested (sim/experiments/orderings.py) as
@@ -407,7 +339,7 @@ def report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:
     paths |= {f"orderings {ext}": folder / f"{db.stem}-orderings.{ext}" for ext in ("md", "csv")}
     paths["md"].write_text(text)
     write_csv(table, paths["csv"])
-    write_chart(table, paths["png"])
+    write_chart(table, paths["png"], DIFFICULTY)
     paths["orderings md"].write_text(ordered)
     claims.write_csv(tested, paths["orderings csv"])
     return {"markdown": text, "orderings": ordered, "paths": paths}
