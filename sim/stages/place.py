@@ -171,11 +171,15 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     order = ranked.ranked()
     with world.timer("ik"):
         maybe = planner.may_stand(robot, ranked.ratings.positions[order])
+        # then those the arm would reach from floor never scanned: scouting goes to look
+        hoped = scouting.may_stand(ranked.ratings.positions[order]) & ~maybe
     out_of_reach = int((~maybe).sum())
     if out_of_reach:
         farthest = _out_of_reach(ranked, int(order[np.argmax(~maybe)]))
-    findable = _findable(ranked, order[maybe], targets, problem, s.camera.baseline_m)
-    for i in order[maybe]:
+    maybe_of = np.zeros(len(ranked.ratings.positions), bool)
+    maybe_of[order[maybe]] = True
+    findable = _findable(ranked, order[maybe | hoped], targets, problem, s.camera.baseline_m)
+    for i in [*order[maybe], *order[hoped]]:
         if tried >= q.ik_candidates or standless >= MAX_STANDLESS:
             break
         target = targets[int(ranked.target[i])]
@@ -194,10 +198,13 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         if s.robots.move_base:
             planner, reachable = scouting.stands(planner, model.position, position)
             if not reachable:
-                out_of_reach += 1  # from no place the base gets to does the arm reach it
+                if maybe_of[i]:  # (one hoped for is counted out of reach already)
+                    out_of_reach += 1  # from no place the base gets to does the arm reach it
                 if farthest is None or ranked.ratings.total[i] > farthest["rating"]:
                     farthest = _out_of_reach(ranked, int(i))
                 continue
+            if not maybe_of[i]:
+                out_of_reach -= 1  # a scouting trip found it a place to stand
         start = belief.qpos.copy()
 
         tried += 1
