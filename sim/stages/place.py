@@ -187,19 +187,23 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in rejected):
             continue  # next to a candidate that failed: try somewhere else
         model = target_model(target)  # the point the camera aims at, as the rating rates it
+        # (a candidate hoped for is counted out of reach already, until a trip opens it)
         if not findable[i]:
-            undetectable += 1  # too far or too oblique for the hole detector
+            undetectable += int(maybe_of[i])  # too far or too oblique for the hole detector
             continue  # (in either stereo image: sightings need both)
         if corners is not None and not sees_site(position, model.position, corners,
                                                  math.radians(s.camera.fovy_deg),
                                                  s.camera.near_m, s.camera.far_m):
-            out_of_frame += 1  # the insertion it is to measure would not be in focus and
-            continue  # in frame
+            out_of_frame += int(maybe_of[i])  # the insertion it is to measure would not be in
+            continue  # focus and in frame
         if s.robots.move_base:
-            planner, reachable = scouting.stands(planner, model.position, position)
+            if not maybe_of[i] and scouting.spent and not planner.may_stand(
+                    robot, position[None])[0]:
+                reachable = False  # hoped for, and no trip left to go and look
+            else:
+                planner, reachable = scouting.stands(planner, model.position, position)
             if not reachable:
-                if maybe_of[i]:  # (one hoped for is counted out of reach already)
-                    out_of_reach += 1  # from no place the base gets to does the arm reach it
+                out_of_reach += int(maybe_of[i])  # the arm reaches it from no place it gets to
                 if farthest is None or ranked.ratings.total[i] > farthest["rating"]:
                     farthest = _out_of_reach(ranked, int(i))
                 continue

@@ -218,6 +218,11 @@ class Scouting:
     def _may_ask(self) -> bool:
         return self.on and len(self.trips) < TRIPS and self.asked < QUESTIONS
 
+    @property
+    def spent(self) -> bool:
+        """Can no further trip be taken?"""
+        return not self._may_ask()
+
     def _hopeful_planner(self, question: bool = True) -> ArmPlanner:
         """The planner with the space never observed free, as the maps now are; a
         ``question`` (a plan asked of it) counts towards QUESTIONS, a lookup does not."""
