@@ -196,7 +196,8 @@ def test_a_robots_own_body_clears_the_rays_up_to_it_and_is_not_mapped():
     assert L[tuple(g.index(np.array([[-0.1, 0.0, 1.5]]))[0])] == MISS  # in front: free
     assert L[tuple(g.index(np.array([[-0.1, 0.0, 0.5]]))[0])] == 0  # behind the body
     assert L[tuple(g.index(np.array([[-0.1, 0.0, 0.0]]))[0])] == 0  # the floor it hides
-    assert not np.any(L[:, :, g.index(np.array([[0.0, 0.0, 0.9]]))[0][2]:] > 0)  # body: not occupied
+    body = g.index(np.array([[0.0, 0.0, 0.9]]))[0][2]
+    assert not np.any(L[:, :, body:] > 0)  # the body is not mapped
     # where the floor was measured, as without free_to
     right = g.index(np.array([[0.1, 0.0, 0.0]]))[0]
     assert L[tuple(right)] == HIT == alone.log_odds[tuple(right)]
