@@ -3,8 +3,7 @@
 Each valid pixel is a ray from the camera centre to its measured point: the voxels it
 crosses are observed free, the voxel of its end point occupied. Sky pixels (``inf``)
 and pixels beyond ``max_range`` observe free space up to ``max_range`` and nothing
-occupied; NaN and non-positive depths observe nothing, unless a second image says how far
-their rays are free (a robot's own body, filtered out). Every voxel is updated at most
+occupied; NaN and non-positive depths observe nothing. Every voxel is updated at most
 once per image, and occupied wins over free. Rays are traversed exactly (3-D DDA).
 
 Near the camera many rays cross the same voxels. With ``share`` > 0 a block of
@@ -33,32 +32,26 @@ def share_bands(focal_px: float, share: float, max_levels: int = 4) -> np.ndarra
 
 
 @nb.njit(cache=True, parallel=True)
-def _ray_lengths(depth: np.ndarray, free_to: np.ndarray, fx: float, fy: float, cx: float,
-                 cy: float, stride: int, R: np.ndarray, t: np.ndarray, origin: np.ndarray,
-                 resolution: float, max_range: float, shape: tuple[int, int, int],
-                 stamp: np.ndarray, occupied_code: int) -> np.ndarray:
+def _ray_lengths(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, stride: int,
+                 R: np.ndarray, t: np.ndarray, origin: np.ndarray, resolution: float,
+                 max_range: float, shape: tuple[int, int, int], stamp: np.ndarray,
+                 occupied_code: int) -> np.ndarray:
     """Ray lengths (voxels; NaN: no ray) of every ``stride``-th pixel, stamping the voxel
-    of each end point within ``max_range`` occupied; where ``depth`` has no measurement,
-    a positive ``free_to`` is a ray with no end point (``free_to``: (1, 1) for none)."""
+    of each end point within ``max_range`` occupied."""
     rows = (depth.shape[0] + stride - 1) // stride
     cols = (depth.shape[1] + stride - 1) // stride
     lengths = np.full((rows, cols), np.nan, dtype=np.float32)
     n0, n1, n2 = shape
-    clears = free_to.shape == depth.shape
     for r in nb.prange(rows):
         v = r * stride
         for c in range(cols):
             u = c * stride
             z = float(depth[v, u])
-            end = True
             if not (z > 0.0):  # NaN, zero or negative: no measurement
-                if not clears or not (free_to[v, u] > 0.0):
-                    continue
-                z = float(free_to[v, u])
-                end = False
+                continue
             x, y = (u - cx) / fx, (v - cy) / fy
             dist = z * np.sqrt(x * x + y * y + 1.0)  # inf for sky
-            if end and dist <= max_range:
+            if dist <= max_range:
                 ijk = np.empty(3, dtype=np.int64)
                 for a in range(3):
                     point = t[a] + z * (R[a, 0] * x + R[a, 1] * y + R[a, 2])
@@ -71,11 +64,8 @@ def _ray_lengths(depth: np.ndarray, free_to: np.ndarray, fx: float, fy: float, c
 
 def integrate_depth(grid: OccupancyGrid, depth: np.ndarray, camera: Pinhole,
                     T_world_cam: np.ndarray, max_range: float = 4.0, stride: int = 1,
-                    share: float = 0.5, free_to: np.ndarray | None = None) -> tuple[int, int]:
+                    share: float = 0.5) -> tuple[int, int]:
     """Update ``grid`` with one z-depth image (m); ``T_world_cam`` in OpenCV convention.
-    ``free_to`` (z-depth, m, the image's shape): where ``depth`` has no measurement, how
-    far each pixel's ray is free with nothing of the map at its end (a robot's own body,
-    filtered out of ``depth``: the ray reached it, so nothing stood in between).
 
     Returns the number of voxels marked free and occupied.
     """
@@ -83,9 +73,7 @@ def integrate_depth(grid: OccupancyGrid, depth: np.ndarray, camera: Pinhole,
     stamp = grid.stamp.reshape(-1)
     R = np.ascontiguousarray(T_world_cam[:3, :3], dtype=np.float64)
     intrinsics = (camera.fx, camera.fy, camera.cx, camera.cy)
-    clear = np.full((1, 1), np.nan, np.float32) if free_to is None else free_to
-    lengths = _ray_lengths(np.ascontiguousarray(depth), np.ascontiguousarray(clear),
-                           *intrinsics, stride, R,
+    lengths = _ray_lengths(np.ascontiguousarray(depth), *intrinsics, stride, R,
                            np.ascontiguousarray(T_world_cam[:3, 3], dtype=np.float64),
                            grid.origin, grid.resolution, max_range, grid.shape, stamp,
                            occupied_code)

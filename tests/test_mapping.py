@@ -175,31 +175,3 @@ def test_invalid_pixels_change_nothing():
     depth[:, 10:20] = 0.0
     assert integrate_depth(g, depth, cam, looking_down(2.0), max_range=5.0) == (0, 0)
     assert not g.log_odds.any()
-
-
-def test_a_robots_own_body_clears_the_rays_up_to_it_and_is_not_mapped():
-    """Pixels filtered out as the robot's own body (NaN depth) with ``free_to``: the
-    voxels in front of the body are observed free, the body's own voxel is not made
-    occupied, and nothing behind it is observed; a measured pixel beside them is
-    integrated as without ``free_to``."""
-    g = small_grid()
-    cam = Pinhole.from_fovy(math.radians(40), 64, 48)
-    depth = np.full((48, 64), 2.0, dtype=np.float32)  # the floor, z = 0, from z = 2
-    depth[:, :32] = np.nan  # the left half sees the robot, a plate at z = 1 ...
-    own = np.full((48, 64), np.nan, dtype=np.float32)
-    own[:, :32] = 1.0  # ... 1 m in front of the camera
-    alone = small_grid()
-    integrate_depth(alone, depth, cam, looking_down(2.0), max_range=5.0)
-    integrate_depth(g, depth, cam, looking_down(2.0), max_range=5.0, free_to=own)
-    # the image's left half (u < cx) looks at x < 0 (x right in both frames)
-    L = g.log_odds
-    assert L[tuple(g.index(np.array([[-0.1, 0.0, 1.5]]))[0])] == MISS  # in front: free
-    assert L[tuple(g.index(np.array([[-0.1, 0.0, 0.5]]))[0])] == 0  # behind the body
-    assert L[tuple(g.index(np.array([[-0.1, 0.0, 0.0]]))[0])] == 0  # the floor it hides
-    body = g.index(np.array([[0.0, 0.0, 0.9]]))[0][2]
-    assert not np.any(L[:, :, body:] > 0)  # the body is not mapped
-    # where the floor was measured, as without free_to
-    right = g.index(np.array([[0.1, 0.0, 0.0]]))[0]
-    assert L[tuple(right)] == HIT == alone.log_odds[tuple(right)]
-    assert (L > 0).sum() == (alone.log_odds > 0).sum()
-    assert (L == MISS).sum() > (alone.log_odds == MISS).sum()

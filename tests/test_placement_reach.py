@@ -15,7 +15,6 @@ from sim.stages.episode import Episode
 from sim.stages.exploration import explore
 from sim.stages.place import place, ranked_field
 from sim.stages.rating_problem import RatingProblem
-from sim.stages.scout import look
 from sim.world.planning import ArmPlanner
 from sim.world.render import Renderer
 from sim.world.scene import build_scene
@@ -60,16 +59,6 @@ def test_robots_place_at_a_work_piece_enclosed_on_three_sides_and_the_task_is_do
     assert success["0.2"] and success["0.1"], success
 
 
-@pytest.mark.slow
-def test_a_robot_whose_views_stand_beyond_the_floor_it_scanned_scouts_and_is_placed():
-    r1 = first(run("unscanned"), "r1")
-    assert r1["placed"], r1.get("refused")
-    trips = r1["search"]["scouting_trips"]
-    assert any(t["drive"] is not None for t in trips)  # it drove out to look
-    assert sum(t["looks"] for t in trips) > 0 and sum(t["observed"] for t in trips) > 0
-    assert r1["path"]["base_path_m"] > 0.5
-
-
 @pytest.fixture(scope="module")
 def mapped():
     """The default scene (placement alone), mapped; its world, renderer and rating."""
@@ -111,29 +100,6 @@ def test_a_way_held_back_only_by_space_never_observed_is_looked_at_and_taken(map
     # what it looked at is observed again: most of the space forgotten round the view
     assert sum(t["observed"] for t in looked.trips) > 0
     assert (world.grid.log_odds[near] == 0).mean() < 0.5
-
-
-@pytest.mark.slow
-def test_a_robot_turns_its_camera_round_to_look_behind_itself(mapped):
-    """A look at space never observed behind the robot observes it, and leaves the
-    robot as it was."""
-    world, renderer, _ = mapped
-    world = world.restored(world.snapshot(), np.random.default_rng(0), np.random.default_rng(1))
-    robot = world.scene.robots[0]
-    q = world.belief.qpos.copy()
-    q[robot.qpos_adr[:3]] = (0.9, -1.0, -np.pi / 2)  # inside the map, facing -y
-    world.scene.set_robot(world.belief, robot, q)
-    world.scene.set_robot(world.data, robot, q, world.model)
-    behind = np.array([0.9, -0.1, 0.8])
-    cell = tuple(world.grid.index(behind[None])[0])
-    world.grid.log_odds[cell] = 0  # never observed
-    hopeful = ArmPlanner(world.scene, world.belief, 0.03, 0.05, arm=world.arm, room=world.room,
-                         **world.planner_maps("map_seen"))
-    sensor = DepthSensor(renderer, world.pinhole, "render", world.scenario.camera.baseline_m,
-                         world.scene.robot_geoms())
-    assert look(world, robot, behind, hopeful, sensor)
-    assert world.grid.log_odds[cell] != 0
-    assert np.array_equal(world.belief.qpos, q) and np.array_equal(world.data.qpos, q)
 
 
 @pytest.mark.slow

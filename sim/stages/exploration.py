@@ -196,10 +196,10 @@ class Exploration:
         if self.floor is not None:  # mapping's moves are made as planned: no errors yet
             scan_into(self.floor, self.world, self.data, self.data, [robot],
                       self.sensor.robot_geoms)
-        depth, own = self.sensor.measure(self.data, robot)
+        depth = self.sensor.depth(self.data, robot)
         T = opencv_pose(camera_pose(self.data, robot.camera))
         integrate_depth(self.grid, depth, self.pinhole, T, self.s.grid.max_range_m,
-                        self.s.mapping.pixel_stride, free_to=own)
+                        self.s.mapping.pixel_stride)
         self.history.append(mean_entropy(self.grid, self.interest))
         self.taken.append({"robot": robot.name, "position": T[:3, 3].tolist(),
                            "axis": T[:3, 2].tolist(),

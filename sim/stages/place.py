@@ -171,15 +171,11 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     order = ranked.ranked()
     with world.timer("ik"):
         maybe = planner.may_stand(robot, ranked.ratings.positions[order])
-        # then those the arm would reach from floor never scanned: scouting goes to look
-        hoped = scouting.may_stand(ranked.ratings.positions[order]) & ~maybe
     out_of_reach = int((~maybe).sum())
     if out_of_reach:
         farthest = _out_of_reach(ranked, int(order[np.argmax(~maybe)]))
-    maybe_of = np.zeros(len(ranked.ratings.positions), bool)
-    maybe_of[order[maybe]] = True
-    findable = _findable(ranked, order[maybe | hoped], targets, problem, s.camera.baseline_m)
-    for i in [*order[maybe], *order[hoped]]:
+    findable = _findable(ranked, order[maybe], targets, problem, s.camera.baseline_m)
+    for i in order[maybe]:
         if tried >= q.ik_candidates or standless >= MAX_STANDLESS:
             break
         target = targets[int(ranked.target[i])]
@@ -187,28 +183,21 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in rejected):
             continue  # next to a candidate that failed: try somewhere else
         model = target_model(target)  # the point the camera aims at, as the rating rates it
-        # (a candidate hoped for is counted out of reach already, until a trip opens it)
         if not findable[i]:
-            undetectable += int(maybe_of[i])  # too far or too oblique for the hole detector
+            undetectable += 1  # too far or too oblique for the hole detector
             continue  # (in either stereo image: sightings need both)
         if corners is not None and not sees_site(position, model.position, corners,
                                                  math.radians(s.camera.fovy_deg),
                                                  s.camera.near_m, s.camera.far_m):
-            out_of_frame += int(maybe_of[i])  # the insertion it is to measure would not be in
-            continue  # focus and in frame
+            out_of_frame += 1  # the insertion it is to measure would not be in focus and
+            continue  # in frame
         if s.robots.move_base:
-            if not maybe_of[i] and scouting.spent and not planner.may_stand(
-                    robot, position[None])[0]:
-                reachable = False  # hoped for, and no trip left to go and look
-            else:
-                planner, reachable = scouting.stands(planner, model.position, position)
+            planner, reachable = scouting.stands(planner, model.position, position)
             if not reachable:
-                out_of_reach += int(maybe_of[i])  # the arm reaches it from no place it gets to
+                out_of_reach += 1  # from no place the base gets to does the arm reach it
                 if farthest is None or ranked.ratings.total[i] > farthest["rating"]:
                     farthest = _out_of_reach(ranked, int(i))
                 continue
-            if not maybe_of[i]:
-                out_of_reach -= 1  # a scouting trip found it a place to stand
         start = belief.qpos.copy()
 
         tried += 1

@@ -105,11 +105,7 @@ class Placement:
             f = self.farthest
             best = (f"; the best out of reach, RF {f['rating']:.3g}, stands "
                     f"{f['height_m']:.2f} m high at {f['position']}")
-        looked = ""
-        if self.trips:
-            drives = sum(t["drive"] is not None for t in self.trips)
-            looked = (f"; it scouted {len(self.trips)} times ({sum(t['looks'] for t in self.trips)}"
-                      f" looks, {drives} drives)")
+        looked = f"; it drove {len(self.trips)} times to scan the floor" if self.trips else ""
         if self.candidates_tried == 0:
             standless = self.rejections.get("no place to stand", 0)
             return ("no reachable candidate with a positive rating from which the detector "

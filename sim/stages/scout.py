@@ -14,7 +14,6 @@ opens the way, an obstacle closes it.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -34,9 +33,8 @@ from sim.world.sensing import DepthSensor
 # A robot goes to look at most this many times a placement (a trip: a look or two and a
 # drive of a few seconds; three let it look round a wall and again from nearer) ...
 TRIPS = 3
-# ... and asks at most this many times whether space never observed holds back a plan (a
-# question is a plan in the map with that space free: up to a path search's budget; where
-# the base could stand is a lookup, not counted)
+# ... and asks at most this many times whether space never observed holds it back (a
+# question is a plan in the map with that space free: up to a path search's budget)
 QUESTIONS = 6
 # Where a robot looks along a way held back by space never observed: points of it at
 # least this far apart (m; a view 1 m off covers a metre across at the default 60 deg)
@@ -44,9 +42,9 @@ LOOK_APART_M = 0.5
 # A drive is taken when the place nearest the hoped-for stand is farther than this (m:
 # two floor cells); nearer, only looks help
 STEP_M = 0.2
-# A look the arm cannot turn to as it is starts from the capability map's seeds for a
-# camera this share of the arm's reach out towards the point: held near the base, or out
-LOOK_FROM = (0.4, 0.7)
+# Where a look at a stand aims: this high above the floor (m), where the arm tucked at
+# home passes (the home posture holds the head about a metre up)
+STAND_LOOK_Z_M = 0.9
 
 
 def look(world: World, robot: Robot, point: np.ndarray, planner: ArmPlanner,
@@ -56,11 +54,8 @@ def look(world: World, robot: Robot, point: np.ndarray, planner: ArmPlanner,
     free), measure depth and integrate it into the map where the robot believes its
     camera is; the arm is left where it was. Whether it looked."""
     s, belief, data = world.scenario, world.belief, world.data
-    for seed in (belief.qpos, *_look_seeds(world, robot, point)):
-        ik = solve_camera_pose(world.nominal, seed, robot, point, None, move_base=False)
-        if ik.converged and planner.clear(robot, ik.qpos[robot.qpos_adr]):
-            break
-    else:
+    ik = solve_camera_pose(world.nominal, belief.qpos, robot, point, None, move_base=False)
+    if not ik.converged or not planner.clear(robot, ik.qpos[robot.qpos_adr]):
         return False
     believed, true = belief.qpos.copy(), data.qpos.copy()
     arm = robot.qpos_adr[3:]
@@ -68,38 +63,13 @@ def look(world: World, robot: Robot, point: np.ndarray, planner: ArmPlanner,
     turned[arm] = true[arm] + ik.qpos[arm] - believed[arm]
     world.scene.set_robot(data, robot, turned, world.model)
     world.scene.set_robot(belief, robot, ik.qpos)
-    depth, own = sensor.measure(data, robot)
+    depth = sensor.depth(data, robot)
     believed_camera = opencv_pose(camera_pose(belief, robot.camera))
     integrate_depth(world.grid, depth, world.pinhole, believed_camera, s.grid.max_range_m,
-                    s.mapping.pixel_stride, free_to=own)
+                    s.mapping.pixel_stride)
     world.scene.set_robot(data, robot, true, world.model)
     world.scene.set_robot(belief, robot, believed)
     return True
-
-
-def _look_seeds(world: World, robot: Robot, point: np.ndarray) -> list[np.ndarray]:
-    """Configurations to start a look's gaze IK from when the arm as it is cannot turn
-    its camera at ``point`` (m; behind the robot, say): the arm at the capability map's
-    seeds for the camera LOOK_FROM of the reach out from the base towards the point, as
-    high as it is now, looking at it."""
-    belief = world.belief
-    x, y, yaw = belief.qpos[robot.qpos_adr[:3]]
-    c, s = math.cos(yaw), math.sin(yaw)
-    to_base = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # world to base
-    local = to_base @ (np.asarray(point, float) - np.array([x, y, 0.0]))
-    height = float(camera_pose(belief, robot.camera)[2, 3])
-    bearing = np.array([*local[:2], 0.0]) / max(float(np.hypot(*local[:2])), 1e-9)
-    seeds = []
-    for share in LOOK_FROM:
-        camera = bearing * share * world.arm.reach_m + np.array([0.0, 0.0, height])
-        direction = local - camera
-        direction /= max(float(np.linalg.norm(direction)), 1e-9)
-        joints, _ = world.arm.reach.seeds(camera, direction, 1)
-        for arm in joints:
-            seed = belief.qpos.copy()
-            seed[robot.qpos_adr[3:]] = arm
-            seeds.append(seed)
-    return seeds
 
 
 def scout(world: World, robot: Robot, hoped: np.ndarray,
@@ -113,11 +83,9 @@ def scout(world: World, robot: Robot, hoped: np.ndarray,
     ``sensor``); if the planner, asked again, still finds no stand, drive to the place
     nearest the stand, scanning, and look again. What the trip did, or None if nothing
     could be done."""
-    hopeful = planner_in("map_seen")
-    stand = np.array([*hoped, np.mean(hopeful.tucked_heights(robot))])
+    stand = np.array([*hoped, STAND_LOOK_Z_M])
     unknown_before = _unknown(world)
-    looks = _looks(world, robot, (*_way(world, robot, hoped, hopeful), stand, position),
-                   hopeful, sensor)
+    looks = _looks(world, robot, (stand, position), planner_in("map_seen"), sensor)
     planner = planner_in("map")  # as the looks left the map
     driven = None
     if drive and not len(planner.stands(robot, look_at, position).xy):
@@ -132,33 +100,12 @@ def scout(world: World, robot: Robot, hoped: np.ndarray,
             scan_into(world.floor, world.model, world.data, world.belief, [robot],
                       world.scene.robot_geoms())
             driven = {"to": nearest.round(3).tolist(), "path": plan.summary()}
-            hopeful = planner_in("map_seen")
-            looks += _looks(world, robot, (*_way(world, robot, hoped, hopeful), stand, position),
-                            hopeful, sensor)
+            looks += _looks(world, robot, (stand, position), planner_in("map_seen"), sensor)
     seen = unknown_before - _unknown(world)
     if driven is None and not looks:
         return None
     return {"for": position.round(3).tolist(), "stand": hoped.round(3).tolist(),
             "looks": looks, "drive": driven, "observed": seen}
-
-
-def _way(world: World, robot: Robot, hoped: np.ndarray, hopeful: ArmPlanner) -> np.ndarray:
-    """Where to look along the way the base would drive to ``hoped`` (x, y; m) if the
-    space never observed were free (``hopeful``: the planner that takes it so): points of
-    its path LOOK_APART_M apart, from LOOK_APART_M on, each as low and as high as the
-    tucked arm would pass (m; none if it finds no way): near the robot one view's
-    frustum does not span the arm's heights."""
-    start = world.belief.qpos.copy()
-    with world.timer("ik"):
-        plan = hopeful.drive_to(robot, hoped)
-    world.scene.set_robot(world.belief, robot, start)  # a plan leaves it at its goal
-    if plan.reason is not None or plan.path is None:
-        return np.zeros((0, 3))
-    xy = plan.path[:, :2]
-    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
-    at = np.arange(LOOK_APART_M, along[-1] + 1e-9, LOOK_APART_M)
-    ground = np.column_stack([np.interp(at, along, xy[:, 0]), np.interp(at, along, xy[:, 1])])
-    return np.array([[*p, z] for p in ground for z in hopeful.tucked_heights(robot)])
 
 
 def look_along(world: World, robot: Robot, points: np.ndarray, position: np.ndarray,
@@ -218,15 +165,8 @@ class Scouting:
     def _may_ask(self) -> bool:
         return self.on and len(self.trips) < TRIPS and self.asked < QUESTIONS
 
-    @property
-    def spent(self) -> bool:
-        """Can no further trip be taken?"""
-        return not self._may_ask()
-
-    def _hopeful_planner(self, question: bool = True) -> ArmPlanner:
-        """The planner with the space never observed free, as the maps now are; a
-        ``question`` (a plan asked of it) counts towards QUESTIONS, a lookup does not."""
-        self.asked += question
+    def _hopeful_planner(self) -> ArmPlanner:
+        self.asked += 1
         if self._hopeful is None:
             self._hopeful = self.planner_in("map_seen")
         return self._hopeful
@@ -239,14 +179,6 @@ class Scouting:
         self._hopeful = None
         return True
 
-    def may_stand(self, positions: np.ndarray) -> np.ndarray:
-        """For camera positions (n, 3; m): could the arm reach each from a place the base
-        would get to if the space never observed were free (ArmPlanner.may_stand)? All
-        False unless scouting is on: those are the views a trip may open."""
-        if not self.on:
-            return np.zeros(len(positions), bool)
-        return self._hopeful_planner(question=False).may_stand(self.robot, positions)
-
     def stands(self, planner: ArmPlanner, look_at: np.ndarray, position: np.ndarray
                ) -> tuple[ArmPlanner, bool]:
         """The planner to go on with, and whether it finds a stand for the camera at
@@ -257,7 +189,7 @@ class Scouting:
                 return planner, True
             if not self._may_ask():
                 return planner, False
-            wanted = self._hopeful_planner(question=False).stands(robot, look_at, position)
+            wanted = self._hopeful_planner().stands(robot, look_at, position)
         if not len(wanted.xy) or not self._taken(scout(
                 world, robot, wanted.xy[0], self.planner_in, look_at, position, self.prior_sd,
                 self.sensor, drive=self.drive)):

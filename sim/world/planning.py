@@ -224,7 +224,7 @@ class ArmPlanner:
             if apart.min() < clearance_m:
                 return False
         if self.maps is not None and self.maps.clearance(
-                self._spheres[robot.name], d, clearance_m) < clearance_m:  # off what the maps hold
+                self._spheres[robot.name], d) < clearance_m:  # off what the maps hold
             return False
         return near.clear(d, clearance_m)
 
@@ -453,18 +453,6 @@ class ArmPlanner:
         points = d.xpos[ids].copy()
         d.qpos[:] = self.belief.qpos
         return points
-
-    def tucked_heights(self, robot: Robot) -> tuple[float, float]:
-        """The heights (m) the robot's arm spans tucked at home, its base's spheres
-        apart: what a drive carries through the space above the floor."""
-        d = self._scratch
-        d.qpos[robot.qpos_adr] = self.scene.start_qpos[robot.qpos_adr]
-        mujoco.mj_kinematics(self.scene.model, d)
-        spheres = self._spheres[robot.name]
-        z = spheres.spheres.centres(d)[spheres.base:, 2]
-        r = spheres.spheres.radii[spheres.base:]
-        d.qpos[:] = self.belief.qpos
-        return float((z - r).min()), float((z + r).max())
 
     def camera_path(self, robot: Robot, path: np.ndarray) -> np.ndarray:
         """Where the robot's camera goes along a joint path (n, 3; m), densely."""

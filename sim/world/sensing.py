@@ -18,8 +18,7 @@ class DepthSensor:
 
     Pixels that see a robot are NaN: the robots know their own bodies and joint states
     and filter them out (a robot self-filter), so moving arms are not mapped as
-    obstacles; what was measured there still says the rays were free up to the robot
-    (:meth:`measure`). The mask comes from rendering the robots at their known poses.
+    obstacles. The mask comes from rendering the robots at their known poses.
     """
 
     def __init__(self, renderer: Renderer, pinhole: Pinhole, source: Literal["render", "stereo"],
@@ -29,12 +28,6 @@ class DepthSensor:
         self.robot_geoms = robot_geoms  # bool per geom id
 
     def depth(self, data: mujoco.MjData, robot: Robot) -> np.ndarray:
-        """The depth (m) ``robot``'s camera measures, the robots filtered out (NaN)."""
-        return self.measure(data, robot)[0]
-
-    def measure(self, data: mujoco.MjData, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
-        """The depth (m) ``robot``'s camera measures, the robots filtered out (NaN); and
-        what it measured of the robots (m, NaN elsewhere): how far those rays are free."""
         if self.source == "render":
             depth = self.renderer.depth(data, robot.camera)
         else:
@@ -42,7 +35,5 @@ class DepthSensor:
             right = self.renderer.rgb(data, robot.right_camera)
             depth = stereo_depth(left, right, self.pinhole, self.baseline_m)
         seen = self.renderer.segmentation(data, robot.camera)
-        robots = (seen >= 0) & self.robot_geoms[np.maximum(seen, 0)]
-        own = np.where(robots, depth, np.nan).astype(np.float32)
-        depth[robots] = np.nan
-        return depth, own
+        depth[(seen >= 0) & self.robot_geoms[np.maximum(seen, 0)]] = np.nan
+        return depth
