@@ -55,7 +55,7 @@ from sim.config.sweep import load_sweep
 from sim.experiments.runner import trial_specs
 from sim.experiments.trial import trial_scenario
 from sim.stages.exploration import explore
-from sim.stages.place import MAX_STANDLESS, REJECTED_RADIUS_M, ranked_field
+from sim.stages.place import MAX_PASSED_OVER, REJECTED_RADIUS_M, ranked_field
 from sim.stages.rating_problem import RatingProblem, target_model
 from sim.stages.timer import Timer
 from sim.stages.world import build_world
@@ -118,7 +118,7 @@ def scene_rows(spec: Any, top: int, world_kind: str) -> list[dict[str, Any]]:
     room = planner.may_stand(robot, ranked.ratings.positions[order])
     for i in order[room]:  # as placement: out of the arm's reach, not tried
         if sum(r["why"] != "no place to stand" for r in rows) >= top or len(rows) >= (
-                MAX_STANDLESS + top):
+                MAX_PASSED_OVER + top):
             break
         position = ranked.ratings.positions[i]
         if any(np.linalg.norm(position - p) < REJECTED_RADIUS_M for p in tried):

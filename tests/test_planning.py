@@ -3,6 +3,8 @@ clutter, in MuJoCo's nominal world."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -12,7 +14,7 @@ from sim.config.scenario import ScenarioError, load_scenario, parse_scenario
 from sim.stages.place import travel_weighed
 from sim.world.collision import KeepOut, Proximity
 from sim.world.motion import dense_path
-from sim.world.planning import ArmPlanner
+from sim.world.planning import BESIDE_UNREACHED, CHECK_STEP, ArmPlanner
 from sim.world.scene import build_scene
 
 CLEARANCE_M = 0.03
@@ -114,6 +116,26 @@ def test_a_path_not_found_within_the_budget_says_so():
     assert plan.reason == "no path within the budget", plan.summary()
     assert plan.checks >= 200 and len(plan.path) == 0
     assert np.array_equal(p.belief.qpos, before)
+
+
+def test_a_goal_beside_one_the_search_did_not_reach_is_refused_without_a_search():
+    """After the search fails to reach a goal, a goal joined to it by a clear straight
+    joint segment is refused as beside it: no search, only the segment's checks (one
+    every CHECK_STEP). A new planner (other maps) searches for it again."""
+    scene = wall_scene()
+    p = planner(scene, checks=200)
+    robot = scene.robots[0]
+    first = p.plan(robot, scene.primary.position, GOAL)
+    assert first.reason == "no path within the budget"
+    near = GOAL + np.array([0.0, 0.01, 0.0])
+    beside = p.plan(robot, scene.primary.position, near)
+    assert beside.reason == BESIDE_UNREACHED, beside.summary()
+    a, b = first.ik.qpos[robot.qpos_adr], beside.ik.qpos[robot.qpos_adr]
+    assert beside.checks == math.ceil(float(np.linalg.norm(b - a)) / CHECK_STEP)
+    assert len(beside.path) == 0
+    assert clear_along(scene, robot, np.array([a, b]))  # the segment, checked afresh
+    again = planner(scene, checks=200).plan(robot, scene.primary.position, near)
+    assert again.reason == "no path within the budget" and again.checks >= 200
 
 
 @pytest.mark.parametrize("goal", [np.array([-0.4, 0.0, 3.0])])

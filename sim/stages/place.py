@@ -41,16 +41,17 @@ from sim.stages.scout import Scouting
 from sim.stages.world import World
 from sim.world.base_scanner import scan_into
 from sim.world.collision import KeepOut, blocked_rays, robot_points
-from sim.world.planning import ArmPlanner
+from sim.world.planning import BESIDE_UNREACHED, ArmPlanner
 from sim.world.render import camera_pose
 from sim.world.scene import Robot
 from sim.world.sensing import DepthSensor
 
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
-# Candidates whose every stand of the capability map is in collision are refused by a
-# few validity checks (about 1 ms) and do not count as tried; at most this many are
-# passed over, so that a ring of clutter cannot keep the search going forever
-MAX_STANDLESS = 500
+# Candidates whose every stand of the capability map is in collision, or whose goal is
+# joined to one the path search did not reach (BESIDE_UNREACHED), are refused by a few
+# validity checks (about 1 ms) and do not count as tried; at most this many are passed
+# over, so that a ring of clutter cannot keep the search going forever
+MAX_PASSED_OVER = 500
 
 
 def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
@@ -165,7 +166,7 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                         sensor, on=q.planner_world != "model" and s.robots.move_base,
                         drive=step is None)
     rejected = [np.asarray(p, float) for p in avoid]
-    standless = 0  # candidates whose every stand was in collision: cheap, not counted
+    passed_over = 0  # candidates refused cheaply (MAX_PASSED_OVER): not counted as tried
     out_of_reach = 0  # candidates the arm reaches from no place the base gets to
     farthest: dict[str, Any] | None = None  # the best of them
     order = ranked.ranked()
@@ -180,7 +181,7 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     maybe_of[order[maybe]] = True
     findable = _findable(ranked, order[maybe | hoped], targets, problem, s.camera.baseline_m)
     for i in [*order[maybe], *order[hoped]]:
-        if tried >= q.ik_candidates or standless >= MAX_STANDLESS:
+        if tried >= q.ik_candidates or passed_over >= MAX_PASSED_OVER:
             break
         target = targets[int(ranked.target[i])]
         position = ranked.ratings.positions[i]
@@ -218,9 +219,9 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
         if plan.reason is not None:
             planner, plan = scouting.plan(planner, plan, model.position, position, start)
         why = plan.reason
-        if why == "no place to stand":
+        if why in ("no place to stand", BESIDE_UNREACHED):
             tried -= 1
-            standless += 1
+            passed_over += 1
         if why is None and q.check_sight and blocked_rays(
                 world.nominal, belief, robot, target_points(model)):
             why = "occluded"

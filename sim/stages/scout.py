@@ -26,7 +26,7 @@ from sim.stages.move import move
 from sim.stages.world import World
 from sim.world.base_scanner import scan_into
 from sim.world.ik import solve_camera_pose
-from sim.world.planning import ArmPlanner, Plan
+from sim.world.planning import BESIDE_UNREACHED, ArmPlanner, Plan
 from sim.world.render import camera_pose
 from sim.world.scene import Robot
 from sim.world.sensing import DepthSensor
@@ -215,13 +215,16 @@ class Scouting:
         self.asked = 0
         self._hopeful: ArmPlanner | None = None
 
+    def _may_trip(self) -> bool:
+        return self.on and len(self.trips) < TRIPS
+
     def _may_ask(self) -> bool:
-        return self.on and len(self.trips) < TRIPS and self.asked < QUESTIONS
+        return self._may_trip() and self.asked < QUESTIONS
 
     @property
     def spent(self) -> bool:
         """Can no further trip be taken?"""
-        return not self._may_ask()
+        return not self._may_trip()
 
     def _hopeful_planner(self, question: bool = True) -> ArmPlanner:
         """The planner with the space never observed free, as the maps now are; a
@@ -255,7 +258,7 @@ class Scouting:
         with world.timer("ik"):
             if len(planner.stands(robot, look_at, position).xy):
                 return planner, True
-            if not self._may_ask():
+            if not self._may_trip():
                 return planner, False
             wanted = self._hopeful_planner(question=False).stands(robot, look_at, position)
         if not len(wanted.xy) or not self._taken(scout(
@@ -274,8 +277,8 @@ class Scouting:
         (its camera's way, its elbow and wrist at the goal) and plan again. The planner
         and the plan to go on with."""
         world, robot = self.world, self.robot
-        if not self._may_ask() or self.sensor is None:
-            return planner, refused
+        if not self._may_ask() or self.sensor is None or refused.reason == BESIDE_UNREACHED:
+            return planner, refused  # (beside a goal asked about already)
         with world.timer("ik"):
             hopeful = self._hopeful_planner()
             hoped = hopeful.plan(robot, look_at, position)

@@ -64,13 +64,21 @@ ARM_SWING_RAD = math.pi / 2  # see ArmPlanner._bounds
 STEP_RANGE = 1.0
 
 
+# Why a goal is refused without a search: a straight clear segment joins it to a goal the
+# search did not reach from the same start, in the same maps. Had a path to it been
+# found, that segment would have reached the other; so, as far as the search can tell,
+# there is none (a view beside one whose way in failed shares its way in)
+BESIDE_UNREACHED = "no path, as for a goal beside it"
+
+
 @dataclass(frozen=True)
 class Plan:
     """A goal configuration and the joint path there, or why there is none: ``reason``
     is None (it may be taken), "no place to stand" (no clear place the base gets to
     from which the arm reaches the pose), "no goal configuration" (no IK solution that
-    keeps the clearance), "no path within the budget" or "no path within the drive"
-    (the path found drives the base farther than the planner's limit)."""
+    keeps the clearance), "no path within the budget", BESIDE_UNREACHED or "no path
+    within the drive" (the path found drives the base farther than the planner's
+    limit)."""
 
     ik: IKResult | None  # the goal's IK solution (or the best attempt; None: none tried)
     reason: str | None
@@ -124,6 +132,8 @@ class ArmPlanner:
         self._proximity: dict[str, Proximity] = {}
         self._spheres = {r.name: robot_spheres(scene.model, r) for r in scene.robots}
         self._scratch = mujoco.MjData(scene.model)
+        # goals the path search did not reach, by robot and start (this planner's maps)
+        self._unreached: dict[tuple[str, bytes], list[np.ndarray]] = {}
         # clear places for each robot's base, by all they depend on (shared by planners)
         self._standing: dict[tuple[Any, ...], Places] = {} if places is None else places
         self._depends: tuple[Any, ...] = (drive_m, clearance_m, move_base, None if room is None
@@ -383,7 +393,17 @@ class ArmPlanner:
         goal[robot.qpos_adr] = self._nearest_turns(robot, goal[robot.qpos_adr],
                                                    start[robot.qpos_adr])
         ik = dataclasses.replace(ik, qpos=goal)
+        unreached = self._unreached.setdefault((robot.name, start.tobytes()), [])
+        spent = [0]
+        if any(self._segment_clear(robot, failed, goal[robot.qpos_adr], spent)
+               for failed in unreached):
+            self._scratch.qpos[:] = start
+            return Plan(ik, BESIDE_UNREACHED, checks=spent[0],
+                        seconds=time.perf_counter() - started)
         path, checks = self.path(robot, start[robot.qpos_adr], goal[robot.qpos_adr])
+        checks += spent[0]
+        if path is None:
+            unreached.append(goal[robot.qpos_adr])
         self._scratch.qpos[:] = start
         why = self._refused(path)
         if path is None or why is not None:
