@@ -146,6 +146,13 @@ def test_a_trial_that_always_crashes_is_stored_as_failed_and_the_sweep_goes_on(
     the crash runs it again and leaves the rows of an uninterrupted sweep."""
     db = tmp_path / "crash.sqlite"
     monkeypatch.setenv(CRASH_TRIAL_ENV, "1,0")
+    add = Results.add
+
+    def slow_add(results: Results, record: dict) -> None:  # the crash comes while a record
+        add(results, record)                               # is stored, before the next
+        time.sleep(2.0)                                    # trial is handed to the pool
+
+    monkeypatch.setattr(Results, "add", slow_add)
     assert main(["sweep", str(tiny), "--db", str(db), "--workers", str(workers)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert "a worker process died" in "\n".join(err)

@@ -222,7 +222,10 @@ def _on_pool(specs: list[TrialSpec], workers: int
         queue = iter(specs)
 
         def submit(spec: TrialSpec) -> None:
-            pending[pool.submit(run_trial, spec)] = spec
+            try:
+                pending[pool.submit(run_trial, spec)] = spec
+            except BrokenProcessPool as exc:  # a worker died since the last result came
+                raise _PoolBrokenError([*pending.values(), spec], exc) from exc
 
         try:
             for spec in queue:  # keep a few trials per worker queued, not all of them
