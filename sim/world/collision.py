@@ -21,12 +21,14 @@ class KeepOut:
     rotations: np.ndarray
     halves: np.ndarray
 
+    def __post_init__(self) -> None:  # as the compiled distance takes them
+        for name in ("centres", "rotations", "halves"):
+            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), float))
+
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Each point's (k, 3) distance to the nearest box (m; 0 inside one); a
         validity check's share, so compiled (about 2 µs for a robot's geoms)."""
-        return _box_distances(np.ascontiguousarray(self.centres, dtype=float),
-                              np.ascontiguousarray(self.rotations, dtype=float),
-                              np.ascontiguousarray(self.halves, dtype=float),
+        return _box_distances(self.centres, self.rotations, self.halves,
                               np.ascontiguousarray(points, dtype=float))
 
 
@@ -108,15 +110,10 @@ class Proximity:
             self._all = np.concatenate([self.pairs_own, self.pairs_robots, self.pairs_world])
             self._own_count = len(self.pairs_own)
             self._reach = self._radius[self._all[:, 0]] + self._radius[self._all[:, 1]]
-        g, h = self._all[:, 0], self._all[:, 1]
-        d = data.geom_xpos[g] - data.geom_xpos[h]
-        need = np.full(len(g), clearance_m)
-        need[:self._own_count] = 1e-9  # own links: apart
-        bound = np.sqrt(np.einsum("ij,ij->i", d, d)) - self._reach
-        close = np.flatnonzero(bound < need)
-        for k in close[np.argsort(bound[close])]:
-            if mujoco.mj_geomDistance(self.model, data, int(g[k]), int(h[k]), float(need[k]),
-                                      self._fromto) < need[k]:
+        close = _close_pairs(data.geom_xpos, self._all, self._reach, self._own_count,
+                             clearance_m)
+        for g, h, need in close:
+            if mujoco.mj_geomDistance(self.model, data, g, h, need, self._fromto) < need:
                 return False
         return True
 
@@ -192,3 +189,28 @@ def _box_distances(centres: np.ndarray, rotations: np.ndarray, halves: np.ndarra
                     total += over * over
             out[k] = min(out[k], np.sqrt(total))
     return out
+
+
+# Own links need only be apart: this far (m)
+APART_M = 1e-9
+
+
+@nb.njit(cache=True)
+def _close_pairs(xpos: np.ndarray, pairs: np.ndarray, reach: np.ndarray, own: int,
+                 clearance_m: float) -> list[tuple[int, int, float]]:  # pragma: no cover
+    """The geom pairs (k, 2) whose bounding spheres (``reach``: their radii summed) come
+    nearer than each pair needs (the first ``own`` pairs APART_M, the others
+    ``clearance_m``), nearest first, each with what it needs: a validity check's share,
+    so compiled."""
+    bound = np.empty(len(pairs))
+    need = np.empty(len(pairs))
+    for k in range(len(pairs)):
+        g, h = pairs[k, 0], pairs[k, 1]
+        dx = xpos[g, 0] - xpos[h, 0]
+        dy = xpos[g, 1] - xpos[h, 1]
+        dz = xpos[g, 2] - xpos[h, 2]
+        bound[k] = np.sqrt(dx * dx + dy * dy + dz * dz) - reach[k]
+        need[k] = APART_M if k < own else clearance_m
+    close = np.flatnonzero(bound < need)
+    return [(int(pairs[k, 0]), int(pairs[k, 1]), float(need[k]))
+            for k in close[np.argsort(bound[close])]]

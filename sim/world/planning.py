@@ -23,6 +23,7 @@ import dataclasses
 import hashlib
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -202,9 +203,18 @@ class ArmPlanner:
     def _valid(self, robot: Robot, joints: np.ndarray, clearance_m: float) -> bool:
         """Is the robot at ``joints`` (9) clear of everything by ``clearance_m``, its own
         links apart, and its base on (or beside) a place it can get to?"""
-        if self.move_base and not self.places(robot).reached(joints[:2]):
-            return False
-        return self._clear(robot, joints, clearance_m)
+        return self._validity(robot, clearance_m)(joints)
+
+    def _validity(self, robot: Robot, clearance_m: float) -> Callable[[np.ndarray], bool]:
+        """:meth:`_valid` for one robot and clearance, the places its base gets to looked
+        up once: for a path's checks, while the commanded configuration holds still."""
+        places = self.places(robot) if self.move_base else None
+
+        def valid(joints: np.ndarray) -> bool:
+            if places is not None and not places.reached(joints[:2]):
+                return False
+            return self._clear(robot, joints, clearance_m)
+        return valid
 
     def clear(self, robot: Robot, joints: np.ndarray) -> bool:
         """Is the robot at ``joints`` (9) where it may be: clear by the clearance, its own
@@ -304,50 +314,50 @@ class ArmPlanner:
         with the arm tucked, the arm out again at the goal; then OMPL's search over base
         and arm together."""
         spent = [0]
-        if self._segment_clear(robot, start, goal, spent):
+        valid = self._validity(robot, self.clearance_m)
+        if self._segment_clear(valid, start, goal, spent):
             return np.array([start, goal]), spent[0]
         if self.move_base:
             home = self._nearest_turns(robot, self.scene.start_qpos[robot.qpos_adr], start)
             tucked_here, tucked_there = start.copy(), goal.copy()
             tucked_here[3:], tucked_there[3:] = home[3:], home[3:]
             legs = []
-            if self._valid(robot, tucked_here, self.clearance_m) and self._valid(
-                    robot, tucked_there, self.clearance_m):
+            if valid(tucked_here) and valid(tucked_there):
                 arm, base = list(range(3, 9)), [0, 1, 2]
                 for a, b, joints in ((start, tucked_here, arm),
                                      (tucked_here, tucked_there, base),
                                      (tucked_there, goal, arm)):
-                    leg = (np.array([a, b]) if self._segment_clear(robot, a, b, spent)
-                           else self._search(robot, a, b, joints, spent))
+                    leg = (np.array([a, b]) if self._segment_clear(valid, a, b, spent)
+                           else self._search(valid, robot, a, b, joints, spent))
                     if leg is None:
                         break
                     legs.append(leg)
             if len(legs) == 3:
                 return np.vstack([legs[0], legs[1][1:], legs[2][1:]]), spent[0]
-        found = self._search(robot, start, goal, list(range(9)) if self.move_base
+        found = self._search(valid, robot, start, goal, list(range(9)) if self.move_base
                              else list(range(3, 9)), spent)
         return found, spent[0]
 
-    def _segment_clear(self, robot: Robot, a: np.ndarray, b: np.ndarray,
+    @staticmethod
+    def _segment_clear(valid: Callable[[np.ndarray], bool], a: np.ndarray, b: np.ndarray,
                        spent: list[int]) -> bool:
-        """Is the straight joint-space segment from ``a`` (clear) to ``b`` clear,
-        checked every CHECK_STEP? Counts its checks in ``spent``."""
+        """Is the straight joint-space segment from ``a`` (clear) to ``b`` clear by
+        ``valid``, checked every CHECK_STEP? Counts its checks in ``spent``."""
         n = max(1, math.ceil(float(np.linalg.norm(b - a)) / CHECK_STEP))
         for k in range(1, n + 1):
             spent[0] += 1
-            if not self._valid(robot, a + (b - a) * (k / n), self.clearance_m):
+            if not valid(a + (b - a) * (k / n)):
                 return False
         return True
 
-    def _search(self, robot: Robot, start: np.ndarray, goal: np.ndarray, active: list[int],
-                spent: list[int]) -> np.ndarray | None:
+    def _search(self, valid: Callable[[np.ndarray], bool], robot: Robot, start: np.ndarray,
+                goal: np.ndarray, active: list[int], spent: list[int]) -> np.ndarray | None:
         """RRT-Connect (sim/world/rrt.py) from ``start`` to ``goal`` (9 joints each) over
-        the joints ``active`` (the others held as at ``start``), until ``spent`` reaches
-        the budget; the path found or None."""
+        the joints ``active`` (the others held as at ``start``), on which ``valid`` holds,
+        until ``spent`` reaches the budget; the path found or None."""
         lo, hi = self._bounds(robot, start, goal)
-        return rrt_connect(lambda q: self._valid(robot, q, self.clearance_m), start, goal,
-                           active, lo, hi, self.rng, spent, self.checks, CHECK_STEP,
-                           STEP_RANGE)
+        return rrt_connect(valid, start, goal, active, lo, hi, self.rng, spent, self.checks,
+                           CHECK_STEP, STEP_RANGE)
 
     def _bounds(self, robot: Robot, start: np.ndarray, goal: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:

@@ -35,12 +35,18 @@ class Places:
     xy: np.ndarray = field(init=False)  # (n, 2) the centres of the cells it gets to
     drive_m: np.ndarray = field(init=False)  # (n,) and the drive to each
     tree: cKDTree = field(init=False)
+    # per cell (i, j) from (-1, -1): is one of the cells (i..i+1, j..j+1) got to?
+    _beside: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         cells = np.argwhere(np.isfinite(self.drive))
         object.__setattr__(self, "xy", self.origin + cells * self.cell_m)
         object.__setattr__(self, "drive_m", self.drive[tuple(cells.T)])
         object.__setattr__(self, "tree", cKDTree(self.xy.reshape(-1, 2)))
+        got = np.zeros((self.drive.shape[0] + 2, self.drive.shape[1] + 2), bool)
+        got[1:-1, 1:-1] = np.isfinite(self.drive)
+        object.__setattr__(self, "_beside", got[:-1, :-1] | got[1:, :-1] | got[:-1, 1:]
+                           | got[1:, 1:])
 
     def within(self, xy: np.ndarray, radius_m: float) -> np.ndarray:
         """Indices into ``xy`` of the places within ``radius_m`` of a point (x, y; m)."""
@@ -49,9 +55,10 @@ class Places:
     def reached(self, xy: np.ndarray) -> bool:
         """Is the base at ``xy`` (m) on a place it gets to, or on a cell beside one (the
         raster's resolution: between cell centres the base is as clear as at them)?"""
-        i, j = np.floor((xy - self.origin) / self.cell_m).astype(int)
-        window = self.drive[max(i, 0):i + 2, max(j, 0):j + 2]
-        return bool(np.isfinite(window).any())
+        i = math.floor((float(xy[0]) - float(self.origin[0])) / self.cell_m) + 1
+        j = math.floor((float(xy[1]) - float(self.origin[1])) / self.cell_m) + 1
+        return 0 <= i < self._beside.shape[0] and 0 <= j < self._beside.shape[1] and bool(
+            self._beside[i, j])  # a validity check's share: table lookups, no arrays
 
 
 @dataclass(frozen=True)
