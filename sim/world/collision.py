@@ -31,6 +31,12 @@ class KeepOut:
         return _box_distances(self.centres, self.rotations, self.halves,
                               np.ascontiguousarray(points, dtype=float))
 
+    def apart(self, xpos: np.ndarray, geoms: np.ndarray, radii: np.ndarray) -> float:
+        """The least distance (m) of the geoms' bounding spheres (centres ``xpos[geoms]``,
+        radii ``radii``) to the boxes: a validity check's share, so compiled."""
+        return float(_spheres_apart(self.centres, self.rotations, self.halves, xpos, geoms,
+                                    radii))
+
 
 def collision_geoms(model: mujoco.MjModel, bodies: frozenset[int]) -> list[int]:
     """Ids of the collidable geoms of ``bodies``."""
@@ -66,6 +72,7 @@ class Proximity:
         self.model, self.limit = model, limit
         self.own = collision_geoms(model, robot.body_ids)
         self.own_array = np.array(self.own, int)
+        self.own_radii = model.geom_rbound[self.own_array]  # their bounding spheres' (m)
         other_bodies = frozenset().union(*(r.body_ids for r in robots if r is not robot))
         self.robots = collision_geoms(model, other_bodies)
         floor = model.geom("floor").id
@@ -174,20 +181,38 @@ def robot_points(model: mujoco.MjModel, data: mujoco.MjData, robot: Robot) -> li
 
 
 @nb.njit(cache=True)
+def _box_distance(centres: np.ndarray, rotations: np.ndarray, halves: np.ndarray,
+                  point: np.ndarray) -> float:  # pragma: no cover - compiled
+    out = np.inf
+    for b in range(len(centres)):
+        total = 0.0
+        for i in range(3):  # the point in the box's frame, outside its half extent
+            local = 0.0
+            for j in range(3):
+                local += rotations[b, j, i] * (point[j] - centres[b, j])
+            over = abs(local) - halves[b, i]
+            if over > 0.0:
+                total += over * over
+        out = min(out, np.sqrt(total))
+    return out
+
+
+@nb.njit(cache=True)
 def _box_distances(centres: np.ndarray, rotations: np.ndarray, halves: np.ndarray,
                    points: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    out = np.full(len(points), np.inf)
+    out = np.empty(len(points))
     for k in range(len(points)):
-        for b in range(len(centres)):
-            total = 0.0
-            for i in range(3):  # the point in the box's frame, outside its half extent
-                local = 0.0
-                for j in range(3):
-                    local += rotations[b, j, i] * (points[k, j] - centres[b, j])
-                over = abs(local) - halves[b, i]
-                if over > 0.0:
-                    total += over * over
-            out[k] = min(out[k], np.sqrt(total))
+        out[k] = _box_distance(centres, rotations, halves, points[k])
+    return out
+
+
+@nb.njit(cache=True)
+def _spheres_apart(centres: np.ndarray, rotations: np.ndarray, halves: np.ndarray,
+                   xpos: np.ndarray, geoms: np.ndarray,
+                   radii: np.ndarray) -> float:  # pragma: no cover - compiled
+    out = np.inf
+    for k in range(len(geoms)):
+        out = min(out, _box_distance(centres, rotations, halves, xpos[geoms[k]]) - radii[k])
     return out
 
 

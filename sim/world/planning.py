@@ -228,11 +228,9 @@ class ArmPlanner:
         d.qpos[robot.qpos_adr] = joints
         mujoco.mj_kinematics(self.scene.model, d)
         near = self.proximity(robot)
-        if self.keep_out is not None:  # each geom's bounding sphere out of it
-            own = near.own_array
-            apart = self.keep_out.distance(d.geom_xpos[own]) - self.scene.model.geom_rbound[own]
-            if apart.min() < clearance_m:
-                return False
+        if self.keep_out is not None and self.keep_out.apart(  # each geom's bounding sphere
+                d.geom_xpos, near.own_array, near.own_radii) < clearance_m:  # out of it
+            return False
         if self.maps is not None and self.maps.clearance(
                 self._spheres[robot.name], d) < clearance_m:  # off what the maps hold
             return False
