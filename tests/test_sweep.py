@@ -3,12 +3,14 @@ sweep files, trials that pair their methods, and reports that count right."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import os
 import shutil
 import signal
+import socket
 import sqlite3
 import subprocess
 import sys
@@ -228,6 +230,55 @@ def test_a_dask_cluster_gives_the_same_rows(tiny, reference, tmp_path):
                       dashboard_address=None) as cluster:
         assert main(["sweep", str(tiny), "--db", str(db), "--scheduler",
                      cluster.scheduler_address]) == 0
+    assert rows(db) == reference
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.slow
+def test_a_real_dask_cluster_loses_no_trial_when_a_worker_dies(tiny, reference, tmp_path):
+    """A `dask scheduler` and two workers started as the docs say (`python -m sim.pinned
+    dask worker ADDRESS`), each its own command; one worker (its nanny and process) is
+    killed mid-sweep, as a machine lost: the other runs what it held, and the rows are
+    an uninterrupted sweep's."""
+    from distributed import Client
+
+    dask = str(Path(sys.executable).parent / "dask")
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    db = tmp_path / "cluster.sqlite"
+    started = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port",
+                                 address.rsplit(":", 1)[1], "--no-dashboard"],
+                                start_new_session=True, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)]
+    try:
+        started += [subprocess.Popen([sys.executable, "-m", "sim.pinned", dask, "worker",
+                                      address, "--nthreads", "1", "--no-dashboard"],
+                                     start_new_session=True, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL) for _ in range(2)]
+        sweep = subprocess.Popen([sys.executable, "-m", "sim.cli", "sweep", str(tiny), "--db",
+                                  str(db), "--scheduler", address], stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.PIPE, text=True)
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(2, timeout=180)
+            deadline = time.monotonic() + 600
+            while _stored(db) < 1 and time.monotonic() < deadline and sweep.poll() is None:
+                time.sleep(0.2)
+            assert sweep.poll() is None, "the sweep ended before a worker could be killed"
+            pids = client.run(os.getpid)
+            busy = [pids[w] for w, keys in client.processing().items() if keys]
+            assert busy, "no worker was running a trial"
+        os.killpg(os.getpgid(busy[0]), signal.SIGKILL)  # its nanny and it, mid-trial
+        _, stderr = sweep.communicate(timeout=900)
+        assert sweep.returncode == 0, stderr
+    finally:
+        for process in started:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
     assert rows(db) == reference
 
 
