@@ -98,15 +98,12 @@ class Proximity:
     def _min(self, pairs: np.ndarray, data: mujoco.MjData) -> float:
         """The smallest distance of the geom pairs (k, 2), nearest bounding spheres
         first: a pair whose spheres are farther apart than the best so far is skipped."""
-        g, h = pairs[:, 0], pairs[:, 1]
-        apart = np.linalg.norm(data.geom_xpos[g] - data.geom_xpos[h], axis=1)
-        bound = apart - self._radius[g] - self._radius[h]
         best = self.limit
-        for k in np.argsort(bound):
-            if bound[k] >= best:
+        for bound, g, h in _nearest_first(data.geom_xpos, pairs, self._radius):
+            if bound >= best:
                 break
-            best = min(best, mujoco.mj_geomDistance(self.model, data, int(g[k]), int(h[k]),
-                                                    self.limit, self._fromto))
+            best = min(best, mujoco.mj_geomDistance(self.model, data, g, h, self.limit,
+                                                    self._fromto))
         return float(best)
 
     def clear(self, data: mujoco.MjData, clearance_m: float) -> bool:
@@ -239,3 +236,18 @@ def _close_pairs(xpos: np.ndarray, pairs: np.ndarray, reach: np.ndarray, own: in
     close = np.flatnonzero(bound < need)
     return [(int(pairs[k, 0]), int(pairs[k, 1]), float(need[k]))
             for k in close[np.argsort(bound[close])]]
+
+
+@nb.njit(cache=True)
+def _nearest_first(xpos: np.ndarray, pairs: np.ndarray, radius: np.ndarray
+                   ) -> list[tuple[float, int, int]]:  # pragma: no cover - compiled
+    """The geom pairs (k, 2), each with the distance between their bounding spheres
+    (``radius`` per geom; m), nearest first."""
+    bound = np.empty(len(pairs))
+    for k in range(len(pairs)):
+        g, h = pairs[k, 0], pairs[k, 1]
+        dx = xpos[g, 0] - xpos[h, 0]
+        dy = xpos[g, 1] - xpos[h, 1]
+        dz = xpos[g, 2] - xpos[h, 2]
+        bound[k] = np.sqrt(dx * dx + dy * dy + dz * dz) - radius[g] - radius[h]
+    return [(float(bound[k]), int(pairs[k, 0]), int(pairs[k, 1])) for k in np.argsort(bound)]
