@@ -137,7 +137,7 @@ def main() -> None:
     sys.path.insert(0, str(ROOT))
     from sim.config.sweep import load_sweep
 
-    densities = list(load_sweep(ROOT / "scenarios" / "table1.toml").densities)
+    densities = list(load_sweep(ROOT / "scenarios" / "table1.toml").config.densities)
     ours = Worker(ROOT)
     rows: list[dict[str, Any]] = []
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
