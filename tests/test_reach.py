@@ -16,6 +16,7 @@ from sim.config.scenario import parse_scenario
 from sim.world.arm import SelfClear, _load, _save, arm_key, camera_chain, scene_arm
 from sim.world.ik import solve_camera_pose
 from sim.world.scene import build_scene
+from sim.world.standing import Places
 
 ROOT = Path(__file__).resolve().parent.parent
 ARMS = {"taskcam": "taskcam", "ur5e": "menagerie:universal_robots_ur5e",
@@ -182,3 +183,16 @@ def test_drives_are_the_shortest_ways_round_what_blocks():
     assert drive[3, 4] == pytest.approx(drive[2, 5] + 0.2)
     # a limit leaves what lies beyond it unreached
     assert np.isinf(drive_lengths(clear, (0, 0), 0.1, 0.5)[3, 0])
+
+
+def test_a_place_is_reached_on_a_cell_got_to_or_beside_one():
+    """Places.reached against its definition, point by point: the cell the base is in,
+    or the next one up in x, in y or both, is one it gets to (inside the raster)."""
+    rng = np.random.default_rng(3)
+    drive = np.where(rng.random((7, 5)) < 0.3, 1.0, np.inf)
+    places = Places(np.array([-0.3, 0.2]), 0.1, drive)
+    for xy in rng.uniform([-0.6, -0.1], [0.6, 0.8], (2000, 2)):
+        i, j = (math.floor(v) for v in (xy - places.origin) / places.cell_m)
+        near = [drive[a, b] for a in (i, i + 1) for b in (j, j + 1)
+                if 0 <= a < drive.shape[0] and 0 <= b < drive.shape[1]]
+        assert places.reached(xy) == any(np.isfinite(near))
