@@ -30,12 +30,32 @@ from pathlib import Path
 HWCAPS = "glibc.cpu.hwcaps"
 GLIBC_MASK = "-AVX2,-FMA,-FMA4"  # libm's SSE2 code: its FMA variants need AVX2 and FMA
 
+# OpenCV's dispatch groups above AVX, each with the CPU flags (Linux's names) it needs
+OPENCV_ABOVE_AVX = {"AVX2": ("avx2",), "FMA3": ("fma",),
+                    "AVX512-SKX": ("avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl")}
+
+
+def _opencv_disabled() -> str:
+    """OpenCV's groups above AVX that this processor has. One it lacks is never taken,
+    so leaving it out changes no code path; naming it makes OpenCV complain on stderr
+    at import. All of them where the processor's flags cannot be read."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return ",".join(OPENCV_ABOVE_AVX)
+    flags = set(next((line.split(":", 1)[1].split() for line in text.splitlines()
+                      if line.startswith("flags")), []))
+    if not flags:
+        return ",".join(OPENCV_ABOVE_AVX)
+    return ",".join(g for g, need in OPENCV_ABOVE_AVX.items() if flags.issuperset(need))
+
+
 PINS: dict[str, str] = {
     # Mesa llvmpipe: SSE4.1, 128-bit vectors, no AVX, FMA or AVX2 in its compiled shaders
     "GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1",
     # OpenCV: its AVX code at most (compiled without FMA), and Intel IPP's SSE4.2 kernels
     # (IPP dispatches on its own, to AVX2 and AVX-512)
-    "OPENCV_CPU_DISABLE": "AVX2,FMA3,AVX512-SKX",
+    "OPENCV_CPU_DISABLE": _opencv_disabled(),
     "OPENCV_IPP": "sse42",
     # numpy: its baseline loops (x86-64-v2), not the AVX2 / AVX-512 ones
     "NPY_ENABLE_CPU_FEATURES": "X86_V2",
