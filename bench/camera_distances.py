@@ -1,6 +1,6 @@
 """How far from their targets the placed cameras end, per method and density, in one
 or more sweep results databases (``taskcam sweep``'s): the distribution the planner's
-reach shapes (issue 20).
+reach shapes.
 
 Run from the repository root: ``python bench/camera_distances.py DB [DB ...]`` (e.g.
 ``docs/table1/table1.sqlite``, the committed Table 1). For every trial and method,
@@ -36,7 +36,7 @@ NEAR_M = 0.9  # the issue's "nearer than 0.9 m"
 
 def target_positions() -> dict[str, np.ndarray]:
     """Each target's nominal position (m) in Table 1's scene: the holes, and the slot
-    (the task's primary target since issue 21) at its own point between the rails' feet."""
+    (the task's primary target) at its own point between the rails' feet."""
     import mujoco  # after sim's pins
 
     scenario = load_sweep(TABLE1).scenario

@@ -24,7 +24,8 @@ def machine() -> dict[str, Any]:
 
 
 def write_results(name: str, rows: list[dict[str, Any]], **extra: Any) -> Path:
-    """``bench/results/NAME.json`` as DESIGN.md section 7 describes."""
+    """``bench/results/NAME.json``, which each benchmark writes as docs/benchmarks.md says:
+    the rows of the table it prints (case, ours, peer, ratio, unit) and the machine."""
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{name}.json"
     path.write_text(json.dumps({"benchmark": name, "machine": machine(), "rows": rows, **extra},

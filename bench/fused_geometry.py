@@ -1,5 +1,5 @@
 """What the stereo geometry allows the task's fused displacement, at the views the rating
-function chose, beside what the task measured there (issue 19).
+function chose, beside what the task measured there.
 
 Run from the repository root on the run directories of ``taskcam run`` (their
 ``summary.json``): ``python bench/fused_geometry.py RUN [RUN ...]``. For every measured

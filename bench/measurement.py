@@ -1,6 +1,5 @@
 """How precisely the insertion task measures the panel's displacement from its slot, over
-distance, angle and occlusion, against what the stereo geometry predicts (issue 19,
-item 5).
+distance, angle and occlusion, against what the stereo geometry predicts.
 
 Run from the repository root: ``python bench/measurement.py`` (``--quick``: 5 views a
 cell, ``--views N``). The scene is Table 1's (scenarios/table1.toml: no MSAA, the
@@ -11,7 +10,7 @@ random displacement above its slot (uniform +-20 mm across, 35-60 mm up: just ab
 rails, the end of the approach) and a stereo pair looks at the site from a random azimuth
 within 45 deg of the panel's face normal (either side), aimed between the slot and the
 panel's centre, rolled up to +-15 deg. The camera's believed pose is off its true one by
-N(0, 1 mm) and N(0, 0.1 deg) RMS (the residual the pose correction leaves, issue 6). Both
+N(0, 1 mm) and N(0, 0.1 deg) RMS (the residual the pose correction leaves). Both
 images are rendered once and every measurement in bench/measurement_views.py's
 ``MEASUREMENTS`` runs on them; today that is the absolute one (the task's own code).
 
@@ -172,8 +171,8 @@ def run_cell(site: Site, distance: float, angle: float, occlusion: float, n: int
         if spread[name]:  # the error against the measurement's own covariance
             row[name]["mahalanobis_p50"] = round(float(np.percentile(spread[name], 50)), 2)
             row[name]["mahalanobis_p95"] = round(float(np.percentile(spread[name], 95)), 2)
-    # DESIGN.md's row keys: the first measurement's 95th-percentile lateral error against
-    # the geometry's
+    # The row keys of docs/benchmarks.md's tables (ours, peer, ratio, unit): the first
+    # measurement's 95th-percentile lateral error against the geometry's
     first = row[next(iter(MEASUREMENTS))]
     ours, peer = first["lateral_p95_mm"], row["predicted"]["lateral_p95_mm"]
     row |= {"ours": ours, "peer": peer, "unit": "mm (lateral p95: measured, geometry)",

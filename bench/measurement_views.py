@@ -13,8 +13,8 @@ A measurement is a function ``(Site, View) -> Measured`` listed in ``MEASUREMENT
 ``absolute`` is today's: the panel from the task's own ``InsertionTask.measure`` (SGBM
 points fitted with the CAD model, through the believed pose), the slot from the holes
 sighted in stereo (``sight``), their common frame and the slot's CAD offset
-(``in_measured_frame``), as the episode does. A second one (the relative measurement of
-issue 19) is added to ``MEASUREMENTS`` and runs on the same views.
+(``in_measured_frame``), as the episode does. A second one (the relative measurement)
+is added to ``MEASUREMENTS`` and runs on the same views.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from sim.world.scene import build_scene
 from detector_views import look_rotation, put_camera
 
 TABLE1 = Path(__file__).resolve().parent.parent / "scenarios" / "table1.toml"
-POSE_SD_M = 0.001  # the pose correction's residual (RMS of the 3-D error), issue 6
+POSE_SD_M = 0.001  # the pose correction's residual (RMS of the 3-D error)
 POSE_SD_DEG = 0.1
 GUESS_SD_M = 0.01  # the fit starts this far off (per axis): a previous measurement's error
 # The guess's orientation is off by this per axis, and the relative fit is told so: what the
@@ -350,7 +350,7 @@ def absolute(site: Site, view: View) -> Measured:
 
 
 def relative(site: Site, view: View) -> Measured:
-    """The relative measurement (issue 19), as the task makes it at a step: the panel's
+    """The relative measurement, as the task makes it at a step: the panel's
     CAD model and the slot's walls fitted to the edges of this camera's own pair
     (``InsertionTask.measure_relative``), the panel from the view's starting guess (1 cm
     off, as a previous measurement leaves it, and turned as the task's belief holds it),

@@ -1,6 +1,6 @@
 """How many of the views the rating function wants a robot can get to: the planner
 (sim/world/planning.py: IK goal from stand-off seeds, OMPL path for base and arm) against
-IK-as-path (the planner before issue 20: mink's collision-avoiding IK from where the
+IK-as-path (the earlier planner: mink's collision-avoiding IK from where the
 robot stands, its iterates the path, checked densely) on the same candidates.
 
 Run from the repository root: ``python bench/planning.py`` (``--scenes N`` per density,
@@ -72,7 +72,7 @@ TABLE1 = Path(__file__).resolve().parent.parent / "scenarios" / "table1.toml"
 
 def ik_as_path(scene: Scene, belief: mujoco.MjData, robot: Robot, look_at: np.ndarray,
                position: np.ndarray, clearance_m: float, margin_m: float) -> bool:
-    """The planner before issue 20: collision-avoiding IK from the commanded
+    """The earlier planner: collision-avoiding IK from the commanded
     configuration, its iterates the path, every point of it (1 cm / 0.01 rad apart)
     keeping the clearance. True if it reaches the candidate."""
     near = Proximity(scene.model, robot, scene.robots)

@@ -1,5 +1,4 @@
-"""How well and how fast the episode corrects each camera's pose from natural fiducials
-(issues 6 and 23).
+"""How well and how fast the episode corrects each camera's pose from natural fiducials.
 
 Runs the default scenario (errors and correction on) over seeds with each tracker
 variant, on the same seeds in one run: ``taskcam`` (the scenario as it is), ``baseline``
@@ -61,7 +60,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "overlap30": {"frame_overlap": 0.3},
     "akaze": {},  # the scenario's tracker with AKAZE for SIFT: see akaze()
 }
-# Wall seconds a move's correction may spend on each part (issue 23: 1.5 s in all, one
+# Wall seconds a move's correction may spend on each part (1.5 s in all, one
 # worker): about five stereo frames of two renders, a segmentation and SIFT on the pair,
 # one bundle adjustment of them and the final estimate.
 BUDGET_S = {"render": 0.45, "features": 0.5, "track": 0.15, "bundle": 0.25, "estimate": 0.15}

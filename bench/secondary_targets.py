@@ -1,5 +1,5 @@
 """What secondary targets do to a placement's tasks, scene by scene, in a sweep results
-database (``taskcam sweep``'s), e.g. ``docs/table1/full.sqlite`` (issue 21).
+database (``taskcam sweep``'s), e.g. ``docs/table1/full.sqlite``.
 
 Run from the repository root: ``python bench/secondary_targets.py DB [--tolerance 0.01]``.
 For each placement method that ran both with and without secondary targets on the same

@@ -1,5 +1,5 @@
 """How far the cameras' target sightings and the secondary targets' stand-ins are from the
-simulator's truth, over a sweep's trials (issue 21's mechanism for the secondary targets).
+simulator's truth, over a sweep's trials.
 
 Run from the repository root, e.g.
 ``python bench/target_sightings.py scenarios/table1.toml --density 1 --trials 40

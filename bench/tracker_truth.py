@@ -1,4 +1,4 @@
-"""The fiducial tracker's measurements against the simulator's truth (issue 23), per
+"""The fiducial tracker's measurements against the simulator's truth, per
 tracker variant of bench/pose_correction.py, on the same seeds in one run.
 
 For every located frame of every correction of the default scenario (errors and

@@ -1,4 +1,4 @@
-"""A left keypoint's right pixel by optical flow (issue 23; ``stereo = "flow"``):
+"""A left keypoint's right pixel by optical flow (``stereo = "flow"``):
 pyramidal Lucas-Kanade (OpenCV) from the left image to the right one, started at a
 guessed disparity and checked by flowing back. It spares SIFT on the right image, which
 costs as much as on the left, for disparities nearly as good: over the default seed

@@ -346,7 +346,7 @@ def test_each_package_has_one_error_type_naming_the_value_and_what_is_accepted(t
 
 
 def test_the_tasks_slot_must_lie_inside_the_grid():
-    """With the task on, the slot is the primary target (issue 21): a work-piece whose
+    """With the task on, the slot is the primary target: a work-piece whose
     slot (x = -0.15 from its centre) lies outside the grid is refused naming
     ``workpiece.position``; with the task off only the holes (x = 0.05, 0.17) must be."""
     data = {"grid": {"bounds_min": [-0.1, -1.5, 0.0]}, "task": {"enabled": True}}

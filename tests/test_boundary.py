@@ -1,4 +1,4 @@
-"""The boundary (issue 18, item 4): the algorithm packages are pure numpy/OpenCV code.
+"""The boundary: the algorithm packages are pure numpy/OpenCV code.
 
 ``mapping``, ``placement`` and ``calibration`` never import mujoco, nor anything of
 ``sim`` (the arrows run one way: sim -> the algorithm packages). Checked in a fresh

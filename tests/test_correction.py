@@ -1,4 +1,4 @@
-"""Pose correction from natural fiducials on rendered images (issue 6): stereo keypoints
+"""Pose correction from natural fiducials on rendered images: stereo keypoints
 against the renderer's depth, the whole corrector through a rendered move whose joints
 err, and the episode's reported errors against the simulator's truth."""
 

@@ -1,4 +1,4 @@
-"""Occlusion density (issue 8, scenes): analytic rays against MuJoCo's, a sphere's cap
+"""Occlusion density: analytic rays against MuJoCo's, a sphere's cap
 by hand, and generated scenes within 3 points of the request."""
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def test_generated_scenes_reach_the_requested_density(request_):
 
 
 def test_clutter_blocks_every_elevation_as_much_as_requested():
-    """Issue 21: over 40 generated 35 % scenes the mean blocked share of every 10 deg band
+    """Over 40 generated 35 % scenes the mean blocked share of every 10 deg band
     from 10 to 70 deg is within 10 points of 35 %, counted again here by brute force
     (MuJoCo's rays through the built scenes, every fourth scene); the bands' shares,
     weighted by their solid angle, are the density."""

@@ -1,4 +1,4 @@
-"""Edges that merge with a neighbouring step (issue 19): how far the search's found step
+"""Edges that merge with a neighbouring step: how far the search's found step
 lies from its true place when another step is near, against images rendered another way,
 and what that bias does to the edge fit's covariance, by hand."""
 

@@ -1,4 +1,4 @@
-"""The examples run as a user runs them, so that they cannot rot (issue 22)."""
+"""The examples run as a user runs them, so that they cannot rot."""
 
 from __future__ import annotations
 

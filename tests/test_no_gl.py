@@ -1,4 +1,4 @@
-"""The commands that do not render work where no GL backend can start (issue 18, item 3).
+"""The commands that do not render work where no GL backend can start.
 
 ``taskcam --help``, ``taskcam report`` (it reads only the results database) and the
 one-line error of a bad scenario or sweep file need neither mujoco nor a GL context.

@@ -1,4 +1,4 @@
-"""The paper's orderings (issue 21, item 3): which pairs of its Table 1 it claims, and
+"""The paper's orderings: which pairs of its Table 1 it claims, and
 their tests on a results database, against hand counts."""
 
 from __future__ import annotations

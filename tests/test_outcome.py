@@ -1,4 +1,4 @@
-"""What ``taskcam run`` prints (issue 22): the stage lines and the outcome table, from a
+"""What ``taskcam run`` prints: the stage lines and the outcome table, from a
 summary whose numbers are known; and the pictures of a run: ``overview.png`` frames the
 work-piece and the robots, ``--video`` films the episode."""
 

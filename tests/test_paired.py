@@ -1,4 +1,4 @@
-"""Two sweeps of the same scenes compared cell by cell (issue 23, item 4): the paired
+"""Two sweeps of the same scenes compared cell by cell: the paired
 difference's interval against its defining properties and its coverage by simulation,
 the comparison of two results databases against hand counts, and `taskcam compare`."""
 

@@ -1,4 +1,4 @@
-"""The relative measurement (issue 19): the edge fit against a rendered, blurred panel at a
+"""The relative measurement: the edge fit against a rendered, blurred panel at a
 known pose, the displacement's indifference to an error of the camera's pose, the fusion
 of cameras and the stop-on-confidence rule by hand."""
 

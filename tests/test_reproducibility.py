@@ -1,4 +1,4 @@
-"""Results that do not depend on the machine (issue 17, part 6; docs/reproducibility.md).
+"""Results that do not depend on the machine (docs/reproducibility.md).
 
 The processor-dependent code paths (Mesa llvmpipe, OpenCV and Intel IPP, numpy, OpenBLAS,
 glibc's maths functions) are pinned in every process a run or a sweep starts: the

@@ -1,4 +1,4 @@
-"""Bring your own robot (issue 22): an arm from MuJoCo Menagerie or the user's MJCF is
+"""Bring your own robot: an arm from MuJoCo Menagerie or the user's MJCF is
 mounted on taskcam's base with the stereo head on its flange, and IK drives it; an arm
 that breaks the contract is refused naming the key."""
 

@@ -1,4 +1,4 @@
-"""Invariants over every file in scenarios/ (issue 18, item 7), as dm_control checks every
+"""Invariants over every file in scenarios/, as dm_control checks every
 task: each scenario gives the same summary twice from its seed (slow: two whole episodes);
 each sweep file reads (fast), and its first trial runs and makes a record the results
 database takes (slow). That each file's world builds and steps physics cleanly is

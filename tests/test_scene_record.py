@@ -1,4 +1,4 @@
-"""The world in the recording (issue 22): every drawn geom as rerun geometry under its
+"""The world in the recording: every drawn geom as rerun geometry under its
 body, the moving bodies' poses over time, and the layout it opens on, read back from
 the ``.rrd`` file."""
 

@@ -68,7 +68,7 @@ def test_soak_checks_every_part(soak: list[dict[str, Any]]) -> None:
     """The soak ran what it claims and its checks had something to check (the found
     scenes included). Re-placements during the task are audited on a run that forces
     one (tests/test_task.py): since cameras are placed for the slot past the hanging
-    panel (issue 21), the found scenes that re-placed cameras no longer do."""
+    panel, the found scenes that re-placed cameras no longer do."""
     c = tally(soak)["counts"]
     assert c["scenes"] == SCENES + len(FOUND) and c["heavy_scenes"] == 2
     assert c["poses_checked"] == c["robots"] > SCENES

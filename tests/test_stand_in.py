@@ -1,4 +1,4 @@
-"""Issue 21, item 1: a camera placed for a secondary target measures the panel against it
+"""A camera placed for a secondary target measures the panel against it
 and carries the displacement to the slot through the known relation (eq. 4). The
 triangulated hole's covariance against draws; the stand-in's place and covariance by
 hand; the displacement through it; the task's targets with the slot as primary."""

@@ -342,7 +342,7 @@ def test_a_database_of_another_sweep_is_refused(tiny, reference, tmp_path, capsy
 
 
 def test_a_database_of_scenes_another_generator_made_is_not_resumed(tmp_path):
-    """The same sweep, its trials made by the scene generator before issue 21 (its
+    """The same sweep, its trials made by an older scene generator (its
     description without ``scenes``): refused, since the same seeds now make other
     scenes; with today's generator named, taken."""
     sweep = load_sweep(SCENARIO_DIR / "smoke.toml")

@@ -1,4 +1,4 @@
-"""The visually guided insertion (issue 7): a well-placed camera guides the panel into
+"""The visually guided insertion: a well-placed camera guides the panel into
 its slot; the same camera behind an occluder cannot, and says why; the map follows the
 panel; the success flags are consistent."""
 

@@ -1,4 +1,4 @@
-"""The fiducial tracker's parts (issue 23): stereo disparities by correlation along the
+"""The fiducial tracker's parts: stereo disparities by correlation along the
 row against shifts made by hand, and the predicted overlap that decides when a frame is
 taken against geometry worked out by hand."""
 

@@ -1,4 +1,4 @@
-"""Runs that tell the truth (issue 17): a target nobody located is not a success, a
+"""Runs that tell the truth: a target nobody located is not a success, a
 correction that cannot locate its final frame says so and is not trusted, and the target
 frame weighs each sighting by how well its camera's pose is known."""
 
@@ -162,7 +162,7 @@ def _moved(point: np.ndarray, pivot: np.ndarray, yaw_deg: float, shift: np.ndarr
 
 
 def test_secondary_targets_stand_in_for_a_hidden_primary_by_hand():
-    """Issue 21: the work-piece turned 3 deg about its centre and shifted (4, -3) mm. Two
+    """The work-piece turned 3 deg about its centre and shifted (4, -3) mm. Two
     secondary targets seen where they truly are, the primary hidden: the frame puts the
     primary (and the slot) where they truly are, rests on the two secondaries, and
     measures the turn (its sd 1 / sqrt(sum w |a|^2) rad, each weighing 1 / (sd^2 +
@@ -220,7 +220,7 @@ def test_the_frame_weighs_each_target_by_its_relation_to_the_primary():
 
 
 def test_each_secondary_target_is_truly_off_its_relation_by_its_st_error():
-    """Issue 21: in the simulated world the secondary hole stands off its CAD place by a
+    """In the simulated world the secondary hole stands off its CAD place by a
     draw of its ST_error (1 mm per axis here), the primary where the CAD puts it; over
     400 draws the offsets' standard deviation is ST_error within 10 % and their mean
     within 4 standard errors of 0. The world records each draw."""
@@ -289,7 +289,7 @@ def _hooded() -> dict:
 
 @pytest.mark.slow
 def test_secondary_targets_stand_in_for_a_hidden_slot():
-    """Issue 21's done-when: the slot hidden under a hood, the holes in view, one mapped
+    """The slot hidden under a hood, the holes in view, one mapped
     world placed both ways (as a sweep's trial does). The map cannot tell the hood's top
     from the rails' voxels, so a camera is still placed for the slot; it cannot fit the
     rails and sights no slot. With secondary targets the frame rests on the holes, most

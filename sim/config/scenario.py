@@ -342,7 +342,7 @@ class TaskConfig(Checked):
     gain: float = checked(lambda v: 0 < v <= 1, "a fraction in (0, 1]", 0.8)
     max_step_m: float = positive(0.03)
     max_steps: int = checked(lambda v: 1 <= v <= 500, "an integer 1 to 500", 40)
-    # "relative": panel minus slot fitted to edges in each camera's own images (issue 19);
+    # "relative": panel minus slot fitted to edges in each camera's own images;
     # "absolute": the panel from stereo points and the slot from the holes' frame
     measurement: Literal["relative", "absolute"] = "relative"
     # stop when the fused displacement is within stop_share of the tightest tolerance and

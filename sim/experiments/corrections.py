@@ -1,4 +1,4 @@
-"""The pose corrections a sweep's trials record (issue 23), and what they were where two
+"""The pose corrections a sweep's trials record, and what they were where two
 sweeps of the same scenes end differently.
 
 Each method's outcome in a trial keeps, per robot, every move's correction: its status

@@ -117,7 +117,7 @@ def trial_records(db: str | Path) -> list[tuple[float, dict[str, Any]]]:
 
 def elevation_bands(db: str | Path) -> dict[float, list[float]]:
     """Each requested density's mean blocked share per 10 deg elevation band (10-20 deg
-    first), over the trials that recorded it (sweeps before issue 21 did not)."""
+    first), over the trials that recorded it (older sweeps did not)."""
     by_density: dict[float, list[list[float]]] = defaultdict(list)
     for density, record in trial_records(db):
         shares = record.get("blocked_by_elevation")
@@ -182,7 +182,7 @@ def bands_markdown(bands: dict[float, list[float]]) -> str:
 @dataclass(frozen=True)
 class Views:
     """What one method's cameras did at one requested density, over its trials: the
-    evidence behind a cell (issue 21: why a rate is what it is)."""
+    evidence behind a cell (why a rate is what it is)."""
 
     method: str
     density: float

@@ -89,7 +89,7 @@ def run_task(world: World, renderer: Renderer, placements: dict[str, tuple[Place
     def replace(cam: Camera, step: int, reason: str, current: float | None,
                 panel: np.ndarray) -> Replacement | None:
         """Place a camera again on the updated map, for the best view of the insertion
-        site (the task's target is the displacement, issue 19), the panel where it was
+        site (the task's target is the displacement), the panel where it was
         measured as one more occluder. One whose view of the site fell (``current``, its
         rating now) moves there unless that view is not worth the move; one that lost
         the panel (``current`` None) moves to the best view somewhere else than where it

@@ -1,4 +1,4 @@
-"""The relative measurement as the insertion task makes it (issue 19): what the task
+"""The relative measurement as the insertion task makes it: what the task
 believes of the panel and the slot becomes each camera's starting poses, the camera's
 stereo pair is fitted (calibration/displacement.py), and the cameras' displacements are
 turned into the world and fused.

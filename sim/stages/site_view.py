@@ -1,5 +1,5 @@
 """How well each placed camera sees the insertion site during the task, and when that
-is bad enough to place it again (issue 19, item 2).
+is bad enough to place it again.
 
 During the insertion (sim/stages/task.py) the panel hangs over its slot and comes down
 into it: it is a moving occluder of the very place the cameras must watch. Every step,
