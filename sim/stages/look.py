@@ -26,6 +26,7 @@ from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import target_model
 from sim.stages.relative import SLOT_REFIT_SD, SLOT_WALLS, SlotBelief, slot_model
 from sim.stages.slot_target import is_slot, nominal_slot, sight_slot, stereo_rig
+from sim.stages.task_images import pair_seen
 from sim.stages.world import Bodies, State, World
 from sim.world.render import Renderer, camera_pose
 from sim.world.scene import Robot
@@ -160,7 +161,8 @@ def _sight(world: World, robot: Robot, left: np.ndarray, right: np.ndarray, p: P
                 max(target_sd(s, t), SLOT_REFIT_SD[0]),
                 max(math.radians(s.workpiece.yaw_error_deg), SLOT_REFIT_SD[1])))
             found = sight_slot(camera, (left, right), t, belief, stereo_rig(world),
-                               slot_model(world.nominal))
+                               slot_model(world.nominal),
+                               pair_seen(left, right, world.pinhole, s.camera.baseline_m))
         else:
             found = sight(robot.name, left, right, t, believed, world.pinhole,
                           s.camera.baseline_m,

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calibration.edge_fit import fit_edges
-from calibration.edge_model import Boxes, StereoRig
+from calibration.edge_model import Boxes, Seen, StereoRig
 from calibration.target_frame import Sighting
 from calibration.targets import Target
 from mapping import opencv_pose
@@ -105,12 +105,15 @@ def stereo_rig(world: World) -> StereoRig:
 
 
 def sight_slot(cam: Camera, images: tuple[np.ndarray, np.ndarray], target: Target,
-               belief: SlotBelief, rig: StereoRig, slot: Boxes) -> Sighting | None:
+               belief: SlotBelief, rig: StereoRig, slot: Boxes, seen: Seen | None = None
+               ) -> Sighting | None:
     """The slot's rails (``slot``, their CAD model) fitted to a camera's stereo pair from
     where ``belief`` puts them, and ``target``'s point carried by the fitted frame into
-    the world through the camera's believed pose; None if the fit is not to be used."""
+    the world through the camera's believed pose; None if the fit is not to be used.
+    ``seen``, the pair's disparity, hides the rails' edges that something nearer covers
+    (as in the task's fits: a hood's slit over them is not taken for them)."""
     start, covariance = slot_start_in(cam, slot, belief)
-    fit = fit_edges(images, slot, rig, start, covariance)
+    fit = fit_edges(images, slot, rig, start, covariance, seen=seen)
     if not fit.ok:
         return None
     in_cam = fit.pose @ np.linalg.solve(belief.pose, np.append(target.position, 1.0))  # origin

@@ -125,20 +125,8 @@ class TaskImages:
         return StereoPair(left, right, mask, near, (rows, cols), right_mask)
 
     def seen(self, pair: StereoPair) -> Seen:
-        """What the pair saw: its left image's disparity (px, full size) over its window,
-        matched at 1/SEEN_SCALE of the resolution (``Seen``: what hides the models the
-        pair's edges are fitted to)."""
-        s, p, b = SEEN_SCALE, self.pinhole, self.rig.baseline_m
-        small = dataclasses.replace(p, width=p.width // s, height=p.height // s, fx=p.fx / s,
-                                    fy=p.fy / s, cx=(p.cx + 0.5) / s - 0.5,
-                                    cy=(p.cy + 0.5) / s - 0.5)
-        left, right = (cv2.resize(im, (small.width, small.height), interpolation=cv2.INTER_AREA)
-                       for im in (pair.left, pair.right))
-        window = tuple(slice(w.start // s, -(-w.stop // s)) for w in pair.window)
-        depth = stereo_depth(left, right, small, b, SEEN_SETTINGS, (window[0], window[1]))
-        disparity = cv2.resize(s * small.fx * b / depth, (p.width, p.height),
-                               interpolation=cv2.INTER_NEAREST)
-        return Seen.of(disparity)
+        """What the pair saw over its window (:func:`pair_seen`)."""
+        return pair_seen(pair.left, pair.right, self.pinhole, self.rig.baseline_m, pair.window)
 
     def _slot_window(self, cam: Camera, measurer: RelativeMeasurer
                      ) -> tuple[slice, slice] | None:
@@ -160,3 +148,23 @@ class TaskImages:
         cols = slice(int(np.clip(uv[:, 0].min() - margin - SETTINGS.num_disparities, 0, w)),
                      int(np.clip(uv[:, 0].max() + margin + 1, 0, w)))
         return None if rows.start >= rows.stop or cols.start >= cols.stop else (rows, cols)
+
+
+def pair_seen(left: np.ndarray, right: np.ndarray, pinhole: Pinhole, baseline_m: float,
+              window: tuple[slice, slice] | None = None) -> Seen:
+    """What a stereo pair of ``pinhole`` images, ``baseline_m`` apart, saw: its left
+    image's disparity (px, full size) over ``window`` (rows, columns; the whole image if
+    None), matched at 1/SEEN_SCALE of the resolution (``Seen``: what hides the models
+    the pair's edges are fitted to)."""
+    s, p = SEEN_SCALE, pinhole
+    small = dataclasses.replace(p, width=p.width // s, height=p.height // s, fx=p.fx / s,
+                                fy=p.fy / s, cx=(p.cx + 0.5) / s - 0.5,
+                                cy=(p.cy + 0.5) / s - 0.5)
+    left, right = (cv2.resize(im, (small.width, small.height), interpolation=cv2.INTER_AREA)
+                   for im in (left, right))
+    rows, cols = window if window is not None else (slice(0, p.height), slice(0, p.width))
+    scaled = tuple(slice(w.start // s, -(-w.stop // s)) for w in (rows, cols))
+    depth = stereo_depth(left, right, small, baseline_m, SEEN_SETTINGS, (scaled[0], scaled[1]))
+    disparity = cv2.resize(s * small.fx * baseline_m / depth, (p.width, p.height),
+                           interpolation=cv2.INTER_NEAREST)
+    return Seen.of(disparity)
