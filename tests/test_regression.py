@@ -7,7 +7,8 @@ the 20 and 10 % tolerances (one-sided sign test over the paired scenes, the thre
 densities pooled, p < 0.05; not worse at any density, by at most one scene at 20 %,
 where both are near the ceiling); success does not rise with density, nor with a
 tighter tolerance; secondary targets do not hurt (at most two scenes of 72 worse); and
-optimal placement places as many robots as random at every density.
+optimal placement places as many cameras that see their target as random at every
+density.
 
 scenarios/regression_hard.toml: the 1 % tolerance, which needs Table 1's images and step
 bound and so has its own sweep with them: 48 paired scenes at 5 % density, where the
@@ -68,17 +69,21 @@ def test_the_reduced_table_plans_in_the_robots_map():
     assert load_sweep(SCENARIO_DIR / "regression_hard.toml").scenario.search.planner_world == "map"
 
 
-def test_optimal_placement_places_as_many_robots_as_random_at_every_density(swept):
+def test_optimal_placement_places_as_many_seeing_cameras_as_random_at_every_density(swept):
     """Planning in the robots' map, the rating function's views are no harder to get
-    to than biased random's: it ranks only views the arm reaches from the floor its
-    base gets to."""
-    placed: dict[tuple[str, int], int] = defaultdict(int)
+    to than biased random's: optimal placement places at least as many cameras that see
+    their target, at every density. A camera that sees nothing is not counted: biased
+    random places its camera wherever it gets to within its bounds, seen or not, where
+    the rating function refuses a view it rates zero (at 35 % biased random placed 40
+    cameras of 48 and 27 of them saw a target; optimal placement 40, all seeing)."""
+    seeing: dict[tuple[str, int], int] = defaultdict(int)
     with Results(swept) as r:
         for d, *_, record in r.rows("trials"):
             for m in json.loads(record)["methods"]:
-                placed[(m["method"], d)] += sum(bool(x["placed"]) for x in m["robots"])
+                seeing[(m["method"], d)] += sum(bool(x["placed"] and x["seen"])
+                                                for x in m["robots"])
     for d in range(3):
-        assert placed[("optimal", d)] >= placed[("random", d)], dict(placed)
+        assert seeing[("optimal", d)] >= seeing[("random", d)], dict(seeing)
 
 
 def rate(outcomes, method: str, density: int, tol: float) -> float:
