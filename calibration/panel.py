@@ -8,11 +8,17 @@ import numpy as np
 
 
 def panel_mask(rgb: np.ndarray) -> np.ndarray:
-    """The panel's pixels: the convex hull of its yellow squares (largest blob)."""
+    """The panel's pixels: the convex hull of its yellow squares (largest blob).
+
+    Two other colours blended across an edge pass through yellow (orange against green,
+    in the one-pixel line a multisampled render draws along it): such a line touching the
+    panel would join its blob and stretch the hull over the background, so lines under
+    three pixels wide are opened away after the squares are closed together."""
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     yellow = cv2.inRange(hsv, (20, 100, 50), (38, 255, 255))  # not the orange bases (17)
+    joined = cv2.morphologyEx(yellow, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
     count, labels, stats, _ = cv2.connectedComponentsWithStats(
-        cv2.morphologyEx(yellow, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)))
+        cv2.morphologyEx(joined, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)))
     mask = np.zeros(rgb.shape[:2], np.uint8)
     if count <= 1:
         return mask.astype(bool)
