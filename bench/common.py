@@ -1,4 +1,8 @@
-"""Helpers shared by the benchmarks: machine description, timing, results files."""
+"""The harness the benchmarks share: the repository's paths, the machine's description,
+the results file each writes, the table each prints and resumable per-scene records.
+
+The rest of the set-up (the code paths pinned, the GL backend chosen) is done by
+importing the ``bench`` package itself, before any script's module loads."""
 
 from __future__ import annotations
 
@@ -9,10 +13,14 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-RESULTS = Path(__file__).resolve().parent / "results"
+ROOT = Path(__file__).resolve().parent.parent  # the repository
+RESULTS = ROOT / "bench" / "results"
+SCENARIOS = ROOT / "scenarios"
 
 
 def machine() -> dict[str, Any]:
+    """The platform, processor, core count and the versions of the packages that set a
+    benchmark's speed."""
     versions: dict[str, str | None] = {}
     for package in ("mujoco", "numpy", "numba", "octomap-python"):
         try:
@@ -23,17 +31,20 @@ def machine() -> dict[str, Any]:
             "cpus": os.cpu_count(), "python": platform.python_version(), **versions}
 
 
-def write_results(name: str, rows: list[dict[str, Any]], **extra: Any) -> Path:
-    """``bench/results/NAME.json``, which each benchmark writes as docs/benchmarks.md says:
-    the rows of the table it prints (case, ours, peer, ratio, unit) and the machine."""
-    RESULTS.mkdir(exist_ok=True)
-    path = RESULTS / f"{name}.json"
+def write_results(name: str, rows: list[dict[str, Any]], *, to: Path | None = None,
+                  **extra: Any) -> Path:
+    """``bench/results/NAME.json`` (or ``to``), which each benchmark writes as
+    docs/benchmarks.md says: the rows of the table it prints (case, ours, peer, ratio,
+    unit), the machine and the benchmark's own ``extra`` fields after them."""
+    path = RESULTS / f"{name}.json" if to is None else to
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({"benchmark": name, "machine": machine(), "rows": rows, **extra},
                                indent=2) + "\n")
     return path
 
 
 def print_table(rows: list[dict[str, Any]]) -> None:
+    """The rows as written to the results file, one a line: case, ours, peer, ratio, unit."""
     print(f"{'case':<44} {'ours':>14} {'peer':>14} {'ratio':>8}  unit")
     for r in rows:
         ours = "-" if r["ours"] is None else f"{r['ours']:.4g}"

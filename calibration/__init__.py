@@ -10,8 +10,9 @@ from .targets import (
     holes_near,
     locate_hole,
     log_response,
+    match_hole_near,
     to_gray,
 )
 
 __all__ = ["CalibrationError", "HoleDetection", "detect_holes", "disk_template", "holes_near",
-           "locate_hole", "log_response", "to_gray"]
+           "locate_hole", "log_response", "match_hole_near", "to_gray"]

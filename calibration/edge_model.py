@@ -20,7 +20,7 @@ END_MARGIN = 0.12  # no searches in this share of an edge at each end: corners m
 
 # An edge is searched at most halfway to its nearest neighbour in the image (the other
 # model's edges included), so that it never takes its neighbour's step for its own;
-# excluding close edges altogether measured worse (bench/measurement.py: 0.8 m, 30 deg,
+# excluding close edges altogether measured worse (bench/studies/measurement.py: 0.8 m, 30 deg,
 # lateral p95 0.44 mm searched this way, 1.12 mm without edges closer than 2 px).
 
 # A face is seen when turned toward the camera by more than MIN_FACING (the cosine of its

@@ -3,7 +3,7 @@ pyramidal Lucas-Kanade (OpenCV) from the left image to the right one, started at
 guessed disparity and checked by flowing back. It spares SIFT on the right image, which
 costs as much as on the left, for disparities nearly as good: over the default seed
 0's located frames, against the renderer's depth, a median error of 0.128 px, 90th
-percentile 0.590 (SIFT matched in both images: 0.095 and 0.417; bench/tracker_truth.py).
+percentile 0.590 (SIFT matched in both images: 0.095 and 0.417; bench/studies/tracker_truth.py).
 On the pose-correction bench it corrects a little worse (docs/benchmarks.md), so it is
 not the default."""
 

@@ -123,7 +123,7 @@ def detect_holes(image: np.ndarray, radius_px: float, max_count: int = 20,
     half = template.shape[0] // 2
     found: list[HoleDetection] = []
     for y, x in zip(ys[order], xs[order], strict=True):
-        det = _match(gray, template, half, int(x), int(y), radius_px)
+        det = match_hole_near(gray, template, half, int(x), int(y), radius_px)
         if det is None or det.score < min_score:
             continue
         if any(math.hypot(det.u - d.u, det.v - d.v) < radius_px for d in found):
@@ -133,9 +133,11 @@ def detect_holes(image: np.ndarray, radius_px: float, max_count: int = 20,
     return found[:max_count]
 
 
-def _match(gray: np.ndarray, template: np.ndarray, half: int, x: int, y: int,
-           radius_px: float) -> HoleDetection | None:
-    """Template match in a window around (x, y); None if the window leaves the image."""
+def match_hole_near(gray: np.ndarray, template: np.ndarray, half: int, x: int, y: int,
+                    radius_px: float) -> HoleDetection | None:
+    """The hole ``template`` (:func:`disk_template`, ``half`` its half-width) matched in a
+    window around pixel (x, y) of ``gray``, at sub-pixel precision; None if the window
+    leaves the image."""
     reach = max(2, int(radius_px // 2))
     x0, y0 = x - half - reach, y - half - reach
     x1, y1 = x + half + reach + 1, y + half + reach + 1

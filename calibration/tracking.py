@@ -126,7 +126,7 @@ def spread(responses: np.ndarray, pixels: np.ndarray, size: tuple[int, int], n: 
     cells: as many as locate a frame), or, given the pixels where known fiducials are
     ``expected`` (m, 2), one cell's share for each cell and the rest in proportion to the
     fiducials expected in it: keypoints are extracted where the track needs them.
-    Measured on `bench/pose_correction.py`'s 24 moves, the final SQPnP estimate's error:
+    Measured on `bench/studies/pose_correction.py`'s 24 moves, the final SQPnP estimate's error:
     the strongest alone, median 1.34 mm, worst 2.87; all of ``n`` shared equally 1.17
     and 3.94 (fiducials of dull cells, poorly placed, picked for the estimate); half of
     it 1.04 and 3.04; half, by the fiducials expected, 1.01 and 2.19."""

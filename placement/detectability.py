@@ -4,7 +4,7 @@ A camera at distance d from a hole of radius r, looking at it from an angle a of
 normal, sees (to first order, the hole at the image's centre) an ellipse of semi-axes
 f r / d and f r cos(a) / d pixels, f the focal length in pixels. The detector needs the
 narrower one, the *projected radius* f r cos(a) / d, to be about a pixel or more, and the
-angle to stay short of grazing: :class:`DetectorLimits`, as bench/detector_limits.py
+angle to stay short of grazing: :class:`DetectorLimits`, as bench/studies/detector_limits.py
 measured them. A stereo sighting needs the hole in both images, and the partner camera
 may see it more obliquely than the one placed: ``detectable(..., baseline_m=...)``.
 """
@@ -25,7 +25,7 @@ class DetectorLimits:
     """The smallest projected radius (px, foreshortened: f r cos(a) / d) and the largest
     angle off the target's normal (deg) at which the detector still finds the hole."""
 
-    # bench/detector_limits.py (rendered, defocused views; 640x480 with and without MSAA,
+    # bench/studies/detector_limits.py (rendered, defocused views; 640x480 with and without MSAA,
     # 320x240 with; per image, found within 1 px in >= 95 % of samples): reliable down to
     # 0.75 px and up to 72.5 deg in all three, but the bins at that corner find only
     # 82-89 %; the defaults keep one bin inside it. Why there: wherever the detector

@@ -33,7 +33,7 @@ def cooperative():
 def test_region_entropy_never_rises_over_an_exploration(seed):
     """The default exploration, to its threshold. (Long past it, voxels that straddle a
     surface, seen free by one view and occupied by another, can raise the mean by a few
-    thousandths of a bit: bench/information_gain.py shows it.)"""
+    thousandths of a bit: bench/peers/information_gain.py shows it.)"""
     episode, summary = explore(seed)
     history = summary["region_entropy_history_bits"]
     assert len(history) == summary["views_total"] + 1

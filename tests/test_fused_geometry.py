@@ -1,17 +1,14 @@
-"""bench/fused_geometry.py: what the stereo geometry allows the task's fused displacement,
-by hand."""
+"""bench/analyses/fused_geometry.py: what the stereo geometry allows the task's fused
+displacement, by hand."""
 
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from fused_geometry import fused_p95, steps, view_covariance
+from bench.analyses.fused_geometry import fused_p95, steps, view_covariance
 
 F, B = 416.0, 0.12
 

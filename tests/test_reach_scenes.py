@@ -1,5 +1,5 @@
 """The scenes of the placement generality benchmark (sim/experiments/reach_scenes.py,
-bench/placement_reach.py) and the compact arm they carry (models/arms/compact_arm.xml)."""
+bench/studies/placement_reach.py) and the compact arm they carry (models/arms/compact_arm.xml)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from sim.world.robot_model import ARM_JOINTS
 from sim.world.scene import build_scene
 
 DRAWS = 300
-# bench/placement_reach.py's minimum over 200 scenes: 30 robots with each of these
+# bench/studies/placement_reach.py's minimum over 200 scenes: 30 robots with each of these
 MINIMUM_PER_200 = 30
 
 

@@ -1,4 +1,4 @@
-"""The soak of unfamiliar scenes in small (bench/soak.py runs 500): random valid
+"""The soak of unfamiliar scenes in small (bench/studies/soak.py runs 500): random valid
 scenarios run as ``taskcam run`` runs them and their run directories audited; and the
 auditor's checks shown to fail on run directories that do not tell the truth."""
 

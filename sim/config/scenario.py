@@ -180,13 +180,17 @@ class GridConfig(Checked):
                                     "each bound at least two voxels above bounds_min")
 
 
+ViewStrategy = Literal["cooperative", "single", "random"]  # who chooses the next view
+ViewGain = Literal["entropy", "unobserved", "rear_side"]  # what a view is expected to gain
+
+
 @dataclass(frozen=True)
 class MappingConfig(Checked):
     """Cooperative mapping: views chosen by expected information, then rendered."""
 
     depth_source: Literal["render", "stereo"] = "render"
-    strategy: Literal["cooperative", "single", "random"] = "cooperative"
-    gain: Literal["entropy", "unobserved", "rear_side"] = "entropy"
+    strategy: ViewStrategy = "cooperative"
+    gain: ViewGain = "entropy"
     max_views: int = checked(lambda v: 1 <= v <= 200, "an integer 1 to 200", 12)  # all robots
     entropy_threshold_bits: float = checked(lambda v: 0 <= v <= 1, "bits in [0, 1]", 0.12)
     region_half_m: tuple[float, float, float] = (0.8, 0.8, 0.6)  # around the primary target

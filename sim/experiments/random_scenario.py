@@ -1,5 +1,5 @@
 """Random scenarios over the scenario schema (sim/config/scenario.py), for the soak of
-unfamiliar scenes (sim/experiments/soak.py, bench/soak.py, tests/test_soak.py).
+unfamiliar scenes (sim/experiments/soak.py, bench/studies/soak.py, tests/test_soak.py).
 
 A draw is a TOML table a user could have written: 1 to 4 robots with bases near and
 far at any yaw, the work-piece anywhere near the origin at any yaw (sometimes with

@@ -1,4 +1,4 @@
-"""Scenes for the benchmark of placement generality (bench/placement_reach.py): the
+"""Scenes for the benchmark of placement generality (bench/studies/placement_reach.py): the
 soak's random scenarios (sim/experiments/random_scenario.py) made harder to reach, with
 every placement setting left at the project's defaults.
 

@@ -67,7 +67,7 @@ def trial_specs(sweep: Sweep) -> list[TrialSpec]:
             for k in range(c.trials) for i, density in enumerate(c.densities)]
 
 
-def _worker_init() -> None:
+def init_worker() -> None:
     """A local worker: dies with the sweep that started it (on Linux), even killed -9,
     rather than finish a trial nobody will store."""
     with suppress(OSError, AttributeError):
@@ -111,7 +111,7 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     pin()
     context = multiprocessing.get_context("spawn")  # no GL context or renderer is inherited
     with (one_thread_each() if workers > 1 else nullcontext()), ProcessPoolExecutor(
-            workers, mp_context=context, initializer=_worker_init) as pool:
+            workers, mp_context=context, initializer=init_worker) as pool:
         yield pool
 
 
@@ -179,7 +179,7 @@ def _alone(spec: TrialSpec) -> dict[str, Any] | TrialFailure:
 
 def _run_and_send(spec: TrialSpec, conn: Connection) -> None:
     """In a trial's own process: run it, send its record (or its exception) back."""
-    _worker_init()
+    init_worker()
     try:
         result: tuple[str, Any] = ("record", run_trial(spec))
     except Exception as exc:

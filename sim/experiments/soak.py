@@ -32,7 +32,7 @@ from sim.config.schema import ScenarioError
 from sim.experiments.audit import audit_run
 from sim.experiments.audit_findings import Finding
 from sim.experiments.random_scenario import SIZES, draw_scenario, is_heavy, to_toml
-from sim.experiments.runner import _worker_init, one_thread_each
+from sim.experiments.runner import init_worker, one_thread_each
 from sim.stages.episode import Episode
 from sim.stages.run_directory import write_run
 
@@ -131,7 +131,7 @@ Job = tuple[int, bool | None] | Path  # a scene index (heavy None: by the index)
 def _worker(conn: Connection, workdir: Path, master_seed: int,
             sizes: tuple[tuple[int, int], ...], keep: bool) -> None:
     """A worker process: runs the scene indices it is sent until it is sent None."""
-    _worker_init()
+    init_worker()
     while True:
         job = conn.recv()
         if job is None:

@@ -47,7 +47,7 @@ from calibration.pose import PoseEstimate, rotation_deg
 from sim.config.scenario import MotionConfig
 
 # The accuracy a trusted correction holds: the pose-correction benchmark's located moves
-# are all within it (bench/pose_correction.py at c726ff8: at most 2.8 mm and 0.14 deg off
+# are all within it (bench/studies/pose_correction.py at c726ff8: at most 2.8 mm and 0.14 deg off
 # the truth). Two estimates from the same fiducials further apart than that cannot both
 # be that close.
 ACCURACY_M = 0.003
@@ -58,7 +58,7 @@ RMS_TO_95 = math.sqrt(7.8147 / 3)
 # The bundle adjustment's covariance counts only independent pixel noise (pixel_sigma);
 # the errors it leaves are larger (the first frame's pose held exact, errors shared by a
 # fiducial's measurements). Over 90 corrections of the soak's 50 scenes with correction
-# on (bench/soak.py's scenes i % 10 == 9, master seed 1), the 95th percentile of error
+# on (bench/studies/soak.py's scenes i % 10 == 9, master seed 1), the 95th percentile of error
 # over standard deviation was 3.13 in position and 1.80 in rotation, where a covariance
 # that held gives RMS_TO_95 (1.61): its standard deviations are scaled by the ratio.
 # (Measured with the first tracker's frames every 3 deg; with the overlap rule's the

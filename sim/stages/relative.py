@@ -40,7 +40,7 @@ from mapping import opencv_pose
 from sim.stages.task_result import Camera
 
 # The holes' frame puts the slot within about this (m, rad per axis): in 15 views at 0.8 m
-# and 30 deg (bench/measurement.py's views) the slot it carried was 0.3-2.7 mm off per axis
+# and 30 deg (bench/studies/measurement.py's views) the slot it carried was 0.3-2.7 mm off per axis
 SLOT_FRAME_SD = (0.002, math.radians(0.5))
 # The slot's fit, carried to the same camera's next step, starts this uncertain (m, rad):
 # the work-piece does not move, a fit is this repeatable (a few tenths of a pixel)
@@ -50,7 +50,7 @@ SLOT_REFIT_SD = (0.001, math.radians(0.2))
 # Only its yaw is as uncertain as the start says. The rails' edges hardly show their tilt
 # about their length (their tops lie in one plane); left free, small biases of those
 # edges turned the fit by 1-1.5 deg and moved the slot's point, at the rails' feet 30 mm
-# below their tops, 0.5-0.7 mm across (bench/measurement.py, 0.8 m, straight down).
+# below their tops, 0.5-0.7 mm across (bench/studies/measurement.py, 0.8 m, straight down).
 # A tilt known exactly is held to this (rad): 3 um at the rails' height, a numerical floor
 LEVEL_SD_RAD = 1e-4
 # A hole's centre as the detector finds it, per axis (px): within the detector's limits

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Protocol
 
 import cv2
 import mujoco
@@ -19,7 +20,6 @@ from mapping.stereo import StereoSettings, stereo_depth
 from sim.stages.relative import RelativeMeasurer
 from sim.stages.task_result import Camera
 from sim.world.optics import Lens, defocus
-from sim.world.render import Renderer
 
 MIN_POINTS = 150  # panel pixels (and points) a measurement needs, over all cameras
 BLUR_MARGIN_PX = 48  # blurred around the panel: 3 sigma of the widest blur level and more
@@ -35,6 +35,19 @@ COARSE = 2
 # Around the slot's walls the images are rendered this far (px) beyond their projection
 # at the fit's start: the widest alignment (edge_search.MAX_REACH_PX) and the blur around it
 SLOT_MARGIN_PX = 48
+
+
+class TaskRenderer(Protocol):
+    """What the task renders with: a :class:`sim.world.render.Renderer`, or a stand-in
+    that serves images rendered beforehand (as :meth:`Renderer.rgb_and_depth` and
+    :meth:`Renderer.segmentation` give them)."""
+
+    def segmentation(self, data: mujoco.MjData, camera: str, downscale: int = 1
+                     ) -> np.ndarray: ...
+
+    def rgb_and_depth(self, data: mujoco.MjData, camera: str,
+                      window: tuple[slice, slice] | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @dataclass(frozen=True)
@@ -67,8 +80,8 @@ class TaskImages:
     """Renders what the task's cameras see of the panel in ``data`` (``renderer``, the
     cameras' ``pinhole`` and ``lens``; the panel's geom, ``panel_geom``)."""
 
-    def __init__(self, data: mujoco.MjData, renderer: Renderer, pinhole: Pinhole, lens: Lens,
-                 panel_geom: int, rig: StereoRig) -> None:
+    def __init__(self, data: mujoco.MjData, renderer: TaskRenderer, pinhole: Pinhole,
+                 lens: Lens, panel_geom: int, rig: StereoRig) -> None:
         self.data, self.renderer, self.pinhole, self.lens = data, renderer, pinhole, lens
         self.panel_geom, self.rig = panel_geom, rig
 

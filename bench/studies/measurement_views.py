@@ -1,5 +1,5 @@
-"""Rendered stereo views of the insertion site for bench/measurement.py, and the
-measurements run on them. Loaded by that entry point after it has chosen the GL backend.
+"""Rendered stereo views of the insertion site for bench/studies/measurement.py, and the
+measurements run on them. A helper of that script, not a script itself.
 
 A view: the panel hangs a random displacement above its slot; a free stereo pair (the
 scenario's baseline) looks at the site from a distance and an angle off the slot's normal;
@@ -24,12 +24,13 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from bench.common import SCENARIOS
+from bench.studies.detector_views import look_rotation, put_camera
 from calibration.target_frame import common_frame, in_measured_frame, sight
 from mapping import opencv_pose
 from sim.config.scenario import ObstacleConfig, Scenario
@@ -44,11 +45,7 @@ from sim.world.optics import Lens, defocus
 from sim.world.render import Renderer, camera_pinhole, camera_pose
 from sim.world.scene import build_scene
 
-# isort: split
-
-from detector_views import look_rotation, put_camera
-
-TABLE1 = Path(__file__).resolve().parent.parent / "scenarios" / "table1.toml"
+TABLE1 = SCENARIOS / "table1.toml"
 POSE_SD_M = 0.001  # the pose correction's residual (RMS of the 3-D error)
 POSE_SD_DEG = 0.1
 GUESS_SD_M = 0.01  # the fit starts this far off (per axis): a previous measurement's error

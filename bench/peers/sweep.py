@@ -1,7 +1,7 @@
 """Sweeps: where a trial's time goes, how trials scale over workers, and whether a
 worker's memory stays flat.
 
-Run from the repository root: ``python bench/sweep.py``. Three parts, on the same
+Run from the repository root: ``python -m bench.peers.sweep``. Three parts, on the same
 sweep file (default ``scenarios/table1.toml``):
 
 1. *Stages*: ``--stage-trials`` trials of the sweep's first method with the pose
@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import statistics
-import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -30,15 +29,9 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import print_table, write_results
-
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
+from bench.common import print_table, write_results
 from sim.config.sweep import Sweep, load_sweep
-from sim.experiments.runner import _worker_init, one_thread_each, run_sweep, trial_specs
+from sim.experiments.runner import init_worker, one_thread_each, run_sweep, trial_specs
 from sim.experiments.trial import TrialSpec, run_trial
 
 STAGES = ("build", "mapping", "placement", "ik", "motion", "correction", "task", "rendering",
@@ -88,7 +81,7 @@ def memory(sweep: Sweep, n: int) -> list[dict[str, Any]]:
     specs = [dataclasses.replace(t, methods=sweep.config.methods[:2])
              for t in trial_specs(dataclasses.replace(sweep, config=dataclasses.replace(
                  sweep.config, trials=max(10, n))))][:n]
-    with ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=_worker_init) as p:
+    with ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=init_worker) as p:
         rss = p.submit(_memory_run, specs).result()
     early = rss[min(19, len(rss) - 1)]  # once the caches a sweep keeps are filled
     return [{"case": f"worker peak memory: trial 20 -> trial {len(rss)}", "ours": rss[-1],

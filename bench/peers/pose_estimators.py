@@ -1,6 +1,6 @@
 """Camera pose from fiducials: the paper's linear fit, Kabsch and OpenCV's SQPnP compared.
 
-Run from the repository root: ``python bench/pose_estimators.py``. The data are
+Run from the repository root: ``python -m bench.peers.pose_estimators``. The data are
 rendered: the default scene seen by robot r1's left camera from 1-2 m (a 640 x 480
 depth image); fiducials are surface points drawn at random from it, their world
 positions exact. Each trial measures them as a stereo camera would — pixel (u, v) and
@@ -16,21 +16,11 @@ Prints one table and writes bench/results/pose_estimators.json.
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
+from typing import Any
 
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-
-# isort: split
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import write_results
-
-# isort: split
+from bench.common import write_results
 from calibration.ekf import StereoCamera
 from calibration.pose import DegenerateGeometryError, estimate_pose, invert
 from mapping import camera_to_world, opencv_pose
@@ -61,8 +51,8 @@ def main() -> None:
     data = scene.make_data()
     robot = scene.robots[0]
     pinhole = camera_pinhole(scene.model, robot.camera)
-    with Renderer(scene.model, pinhole.width, pinhole.height) as r:
-        depth = r.depth(data, robot.camera)
+    with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
+        depth = renderer.depth(data, robot.camera)
     T = opencv_pose(camera_pose(data, robot.camera))
     g_true = invert(T)
     pts = pinhole.unproject(depth)
@@ -72,7 +62,8 @@ def main() -> None:
     flat = usable & (np.abs(world[..., 2] - scene.primary.position[2]) < 0.002)
     stereo = StereoCamera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, s.camera.baseline_m)
     rng = np.random.default_rng(0)
-    rows, table = [], []
+    rows: list[dict[str, Any]] = []
+    table: list[dict[str, Any]] = []
     cases = [("spread", usable, n, sigma) for n in (8, 16, 32) for sigma in (0.1, 0.3, 1.0)]
     cases += [("nearly flat", flat, n, 0.3) for n in (8, 32)]
     for label, mask, n, sigma in cases:

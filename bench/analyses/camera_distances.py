@@ -2,7 +2,7 @@
 or more sweep results databases (``taskcam sweep``'s): the distribution the planner's
 reach shapes.
 
-Run from the repository root: ``python bench/camera_distances.py DB [DB ...]`` (e.g.
+Run from the repository root: ``python -m bench.analyses.camera_distances DB [DB ...]`` (e.g.
 ``docs/table1/table1.sqlite``, the committed Table 1). For every trial and method,
 each placed robot's camera position (the record's ``robots``) is measured to the
 target it viewed, at its nominal place in the sweep's scene (the work-piece's
@@ -17,20 +17,17 @@ import argparse
 import dataclasses
 import json
 import sqlite3
-import sys
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from bench.common import SCENARIOS
 from sim.config.sweep import load_sweep
 from sim.stages.slot_target import SLOT, SLOT_SITE
 from sim.world.scene import build_scene
 
-TABLE1 = Path(__file__).resolve().parent.parent / "scenarios" / "table1.toml"
+TABLE1 = SCENARIOS / "table1.toml"
 NEAR_M = 0.9  # the issue's "nearer than 0.9 m"
 
 

@@ -2,7 +2,7 @@
 simulator's truth, over a sweep's trials.
 
 Run from the repository root, e.g.
-``python bench/target_sightings.py scenarios/table1.toml --density 1 --trials 40
+``python -m bench.analyses.target_sightings scenarios/table1.toml --density 1 --trials 40
 --methods optimal,random``. Each trial is run again (as ``taskcam sweep`` runs it, one
 method at a time) and, where the task begins, every sighting the placed cameras made is
 compared with where the simulated world has that target (the slot's point; a hole's
@@ -17,13 +17,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mapping import opencv_pose
 from sim.config.sweep import load_sweep

@@ -1,6 +1,6 @@
 """View selection: target-region entropy against views taken, per strategy and gain.
 
-Run from the repository root: ``python bench/information_gain.py``. Every strategy maps
+Run from the repository root: ``python -m bench.peers.information_gain``. Every strategy maps
 the default scene from the same start, with the same seeds (so the same candidate
 sampler), with rendered depth; exploration runs to ``--views`` views without stopping
 at the threshold, and the number of views each needs to reach it is read off its curve.
@@ -15,22 +15,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import statistics
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import print_table, write_results
-
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-from sim.config.scenario import load_scenario
+from bench.common import print_table, write_results
+from sim.config.scenario import ViewGain, ViewStrategy, load_scenario
 from sim.stages.episode import Episode
 from sim.world.render import Renderer
 
-STRATEGIES = {  # name: (strategy, gain)
+STRATEGIES: dict[str, tuple[ViewStrategy, ViewGain]] = {  # name: (strategy, gain)
     "cooperative entropy (taskcam)": ("cooperative", "entropy"),
     "single robot, greedy entropy": ("single", "entropy"),
     "cooperative unobserved voxels": ("cooperative", "unobserved"),
@@ -39,7 +31,8 @@ STRATEGIES = {  # name: (strategy, gain)
 }
 
 
-def curve(strategy: str, gain: str, seed: int, views: int) -> tuple[list[float], float]:
+def curve(strategy: ViewStrategy, gain: ViewGain, seed: int, views: int
+          ) -> tuple[list[float], float]:
     s = load_scenario(seed=seed)
     s = dataclasses.replace(s, mapping=dataclasses.replace(
         s.mapping, strategy=strategy, gain=gain, max_views=views, entropy_threshold_bits=0.0))

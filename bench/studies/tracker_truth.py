@@ -1,5 +1,5 @@
 """The fiducial tracker's measurements against the simulator's truth, per
-tracker variant of bench/pose_correction.py, on the same seeds in one run.
+tracker variant of bench/studies/pose_correction.py, on the same seeds in one run.
 
 For every located frame of every correction of the default scenario (errors and
 correction on): each fiducial's disparity against the one the renderer's depth gives at
@@ -8,28 +8,19 @@ first seen at (the drift: the point is found from the depth image and the true c
 pose when the fiducial starts). A tracker whose measurements drift from the point they
 began at triangulates and locates from a moving target.
 
-    .venv/bin/python bench/tracker_truth.py [--seeds 1] [--variants taskcam,flow]
+    .venv/bin/python -m bench.studies.tracker_truth [--seeds 1] [--variants taskcam,flow]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
-from pathlib import Path
 from typing import Any
 
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-
-# isort: split
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import write_results
-from pose_correction import VARIANTS
+from bench.common import write_results
+from bench.studies.pose_correction import VARIANTS
 
 
 class Truth:

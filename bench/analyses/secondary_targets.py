@@ -1,7 +1,7 @@
 """What secondary targets do to a placement's tasks, scene by scene, in a sweep results
 database (``taskcam sweep``'s), e.g. ``docs/table1/full.sqlite``.
 
-Run from the repository root: ``python bench/secondary_targets.py DB [--tolerance 0.01]``.
+Run from the repository root: ``python -m bench.analyses.secondary_targets DB [--tolerance 0.01]``.
 For each placement method that ran both with and without secondary targets on the same
 scenes (the sweep's paired methods, e.g. ``optimal`` and ``optimal_primary``) and each
 density: successes at the tolerance (a fraction of the panel's size) either way, the
@@ -9,7 +9,7 @@ scenes met one way only and the exact two-sided McNemar test on them; and, of th
 scenes met only without secondary targets, in how many a camera was placed for a secondary
 target (a hole: neither the slot nor, during the task, the insertion site), how many of those tasks
 stopped believing the panel within the tolerance (not at the step bound, nor having lost
-the panel) and how far from the slot they ended (mm). ``bench/target_sightings.py``
+the panel) and how far from the slot they ended (mm). ``bench/analyses/target_sightings.py``
 measures the holes' sightings and stand-ins against the truth.
 """
 
@@ -18,12 +18,9 @@ from __future__ import annotations
 import argparse
 import json
 import sqlite3
-import sys
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from calibration.displacement import STOPPED_WITHIN
 from sim.experiments.orderings import mcnemar

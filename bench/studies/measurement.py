@@ -1,7 +1,7 @@
 """How precisely the insertion task measures the panel's displacement from its slot, over
 distance, angle and occlusion, against what the stereo geometry predicts.
 
-Run from the repository root: ``python bench/measurement.py`` (``--quick``: 5 views a
+Run from the repository root: ``python -m bench.studies.measurement`` (``--quick``: 5 views a
 cell, ``--views N``). The scene is Table 1's (scenarios/table1.toml: no MSAA, the
 work-piece off by N(0, 1 cm) in x and y and N(0, 2 deg) in yaw, drawn per view) without
 obstacles but the occluder. For each cell of the grid (distance from the left camera to
@@ -11,7 +11,7 @@ rails, the end of the approach) and a stereo pair looks at the site from a rando
 within 45 deg of the panel's face normal (either side), aimed between the slot and the
 panel's centre, rolled up to +-15 deg. The camera's believed pose is off its true one by
 N(0, 1 mm) and N(0, 0.1 deg) RMS (the residual the pose correction leaves). Both
-images are rendered once and every measurement in bench/measurement_views.py's
+images are rendered once and every measurement in bench/studies/measurement_views.py's
 ``MEASUREMENTS`` runs on them; today that is the absolute one (the task's own code).
 
 Occlusion: points along the 12 edges of the panel and of both rails (16 per edge) that
@@ -42,26 +42,13 @@ import math
 import sys
 import time
 from collections import Counter
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import write_results
-
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-
-# isort: split
-
+from bench.common import write_results
+from bench.studies.measurement_views import MEASUREMENTS, Site, View
 from mapping import opencv_pose
-
-# isort: split
-
-from measurement_views import MEASUREMENTS, Site, View
 
 DISTANCES = (0.25, 0.5, 0.8, 1.2, 1.5, 2.0)  # m; depth of field 0.35-1.5 m
 ANGLES = (0, 30, 50, 70)  # deg off the slot's normal
@@ -101,7 +88,7 @@ def cell_stats(errors: list[np.ndarray]) -> dict[str, float | None]:
                                   "axial_p95_mm")}
     e = np.abs(np.array(errors)) * 1e3
     lateral = np.hypot(e[:, 0], e[:, 1])
-    out = {}
+    out: dict[str, float | None] = {}
     for name, values in (("x", e[:, 0]), ("y", e[:, 1]), ("lateral", lateral),
                          ("axial", e[:, 2])):
         out[f"{name}_p50_mm"] = round(float(np.median(values)), 3)

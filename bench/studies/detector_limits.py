@@ -1,7 +1,7 @@
 """Where the hole detector stops finding the target: its smallest projected radius and
 its largest angle off the target's normal, measured on rendered, defocused images.
 
-Run from the repository root: ``python bench/detector_limits.py`` (about 2.5 min). The
+Run from the repository root: ``python -m bench.studies.detector_limits`` (about 2.5 min). The
 scene is the default scenario's without obstacles (the work-piece with its primary and
 secondary holes, the panel; the one robot is sunk under the floor). A free stereo pair
 (the scenario's baseline) is put at a grid of distances (0.35-8 m: the depth of field
@@ -35,23 +35,13 @@ import argparse
 import dataclasses
 import itertools
 import math
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import write_results
-
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-
-# isort: split
-
+from bench.common import write_results
+from bench.studies.detector_views import MAX_ERROR_PX, observe, probe_scenario, view_pose
 from placement import CameraModel, DetectorLimits, TargetModel, detectable
 from sim.config.scenario import Scenario, load_scenario
 from sim.world.optics import Lens
@@ -69,9 +59,6 @@ RELIABLE = 0.95  # success rate a bin needs
 MIN_BIN = 10  # samples a bin needs to be judged on its own
 
 
-from detector_views import MAX_ERROR_PX, observe, probe_scenario, view_pose
-
-
 def study(label: str, width: int, height: int, samples: int, repeats: int,
           rng: np.random.Generator, sharp: bool = False) -> list[dict[str, Any]]:
     """Every view of the grid under one image size and multisampling (and the left image
@@ -82,7 +69,7 @@ def study(label: str, width: int, height: int, samples: int, repeats: int,
     model.body_pos[model.body(f"{scene.robots[0].name}/base").id, 2] = -3.0  # out of sight
     data = scene.make_data()
     lens = Lens(scenario.camera.near_m, scenario.camera.far_m, scenario.camera.coc_px)
-    rows = []
+    rows: list[dict[str, Any]] = []
     with Renderer(model, width, height) as renderer:
         for distance in DISTANCES:
             for angle in ANGLES:

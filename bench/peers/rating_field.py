@@ -1,6 +1,6 @@
 """The full rating field against brute-force visibility, on the default scene.
 
-Run from the repository root: ``python bench/rating_field.py``. The world is the default
+Run from the repository root: ``python -m bench.peers.rating_field``. The world is the default
 scene, known exactly: every geom is voxelised at 2.1 cm (P = 0.99 touching, 0.01 not),
 giving over a million candidate camera positions in the depth of field of the targets.
 
@@ -24,25 +24,13 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
-import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-
-# isort: split
+import mujoco
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import print_table, write_results
-
-# isort: split
-import mujoco
-
+from bench.common import print_table, write_results
 from calibration.targets import Target
 from mapping import OccupancyGrid, SensorModel
 from placement import (

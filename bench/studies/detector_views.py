@@ -1,7 +1,8 @@
 """Rendered, defocused stereo views of the work-piece's holes for
-bench/detector_limits.py: a free stereo pair put at a distance and an angle off a hole's
-normal, both images blurred by the lens, and each hole searched as the episode searches
-it. Loaded by that entry point after it has chosen the GL backend."""
+bench/studies/detector_limits.py: a free stereo pair put at a distance and an angle off a
+hole's normal, both images blurred by the lens, and each hole searched as the episode
+searches it. A helper of that script (and of bench/studies/measurement_views.py), not a
+script itself."""
 
 from __future__ import annotations
 
@@ -14,9 +15,9 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibration import disk_template, locate_hole, log_response, to_gray
+from calibration import disk_template, locate_hole, log_response, match_hole_near, to_gray
 from calibration.target_frame import projected_disk, search_slack_px, sight
-from calibration.targets import Target, _match
+from calibration.targets import Target
 from mapping import Pinhole, opencv_pose, world_to_camera
 from sim.config.scenario import Scenario, load_scenario
 from sim.stages.look import find_target
@@ -124,7 +125,7 @@ def in_image(image: np.ndarray, T_mjcam: np.ndarray, target: Target, pinhole: Pi
     if fits:
         gray = to_gray(image)
         template = disk_template(radius, shape=shape)
-        at = _match(gray, template, template.shape[0] // 2, round(u), round(v), radius)
+        at = match_hole_near(gray, template, template.shape[0] // 2, round(u), round(v), radius)
         score = None if at is None else at.score
         response = log_response(gray, max(radius / math.sqrt(2), 0.7))
         x, y = round(u), round(v)

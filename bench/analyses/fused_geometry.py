@@ -2,12 +2,12 @@
 function chose, beside what the task measured there.
 
 Run from the repository root on the run directories of ``taskcam run`` (their
-``summary.json``): ``python bench/fused_geometry.py RUN [RUN ...]``. For every measured
+``summary.json``): ``python -m bench.analyses.fused_geometry RUN [RUN ...]``. For every measured
 step of each run's task:
 
 - **geometry, the cameras that fitted the slot**: each camera that fitted the slot's
   rails itself at that step (not through a secondary target) contributes the covariance
-  bench/measurement.py's ``predicted_sd`` gives a displacement at its distance from the
+  bench/studies/measurement.py's ``predicted_sd`` gives a displacement at its distance from the
   slot (each end located to 0.1 px in each image: lateral across its line of sight,
   axial along it); the cameras are fused by inverse covariance, as the task fuses them;
 - **geometry, every placed camera**: the same with every camera, where it stands at
@@ -23,14 +23,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from measurement import AXIS_QUANTILES, predicted_sd
+from bench.studies.measurement import AXIS_QUANTILES, predicted_sd
 
 P95 = AXIS_QUANTILES[1]  # |N(0, s)| of one axis: 95th percentile at 1.96 s
 

@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python bench/sweep_speed.py --baseline c383897 --scenes 10
+    python -m bench.peers.sweep_speed --baseline c383897 --scenes 10
 
 - *Table 1 scene*: the same scenes (the first ``--scenes`` of each density: the scenes
   are drawn from the sweep's seed, the density and the trial's index, alike at both
@@ -29,14 +29,11 @@ import argparse
 import json
 import statistics
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import print_table, write_results
-
-ROOT = Path(__file__).resolve().parents[1]
+from bench.common import ROOT, SCENARIOS, print_table, write_results
+from sim.config.sweep import load_sweep
 
 # Run in a checkout's own environment: reads "SWEEP DENSITY_INDEX TRIAL" lines, runs that
 # trial and answers with its seconds and what it placed. Only names both commits have.
@@ -139,10 +136,7 @@ def main() -> None:
                         help="which comparisons: table1 (against the baseline), loop")
     args = parser.parse_args()
     parts = set(args.parts.split(","))
-    sys.path.insert(0, str(ROOT))
-    from sim.config.sweep import load_sweep
-
-    densities = list(load_sweep(ROOT / "scenarios" / "table1.toml").config.densities)
+    densities = list(load_sweep(SCENARIOS / "table1.toml").config.densities)
     ours = Worker(ROOT)
     rows: list[dict[str, Any]] = []
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],

@@ -3,7 +3,7 @@ in the way, enclosures open on one side, three kinds of arm: sim/experiments/rea
 the share of robots the default pipeline places among those an oracle run of the same
 scene places.
 
-Run from the repository root: ``python bench/placement_reach.py [--scenes 200]
+Run from the repository root: ``python -m bench.studies.placement_reach [--scenes 200]
 [--workers 2] [--out runs/placement_reach] [--seed 2026]``. Each scene (drawn from
 ``numpy.random.default_rng([seed, index, attempt])``; a draw the scenario parser or the
 scene builder refuses is counted and redrawn, as the soak does) runs twice in a worker
@@ -47,15 +47,9 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import append, done_records, print_table, write_results
-
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
 import numpy as np
 
+from bench.common import append, done_records, print_table, write_results
 from sim.config.scenario import load_scenario
 from sim.config.schema import ScenarioError
 from sim.experiments.random_scenario import to_toml
@@ -349,7 +343,7 @@ def main() -> None:
     write_robots(args.out / "robots.jsonl", chosen)
     rows, extra = summarise(chosen, args.seed)
     print_table(rows)
-    command = (f"python bench/placement_reach.py --scenes {args.scenes} --workers "
+    command = (f"python -m bench.studies.placement_reach --scenes {args.scenes} --workers "
                f"{args.workers} --seed {args.seed}")
     path = write_results("placement_reach", rows, command=command, oracle=ORACLE,
                          scenes_requested=args.scenes, workers=args.workers,

@@ -1,6 +1,6 @@
 """Depth integration: taskcam against OctoMap on the same rendered depth frames.
 
-Run from the repository root: ``python bench/integration.py`` (needs the benchmark
+Run from the repository root: ``python -m bench.peers.integration`` (needs the benchmark
 extra: ``pip install -e .[bench]``). Frames: 640 x 480 depth images rendered in the
 default scene, from both robots' start poses looking around the target. Grid: 4 m x
 4 m x 2 m at 2 cm, OctoMap's default sensor model (0.7 / 0.4 / 0.12 / 0.97), 4 m range.
@@ -11,21 +11,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
+from typing import Any
 
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-
-# isort: split
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import print_table, write_results
-
+from bench.common import print_table, write_results
 from mapping import (
     OccupancyGrid,
     Pinhole,
@@ -73,7 +64,7 @@ def octomap_points(depth: np.ndarray, pinhole: Pinhole, T: np.ndarray) -> np.nda
     return cam @ T[:3, :3].T + T[:3, 3]
 
 
-def octomap_states(tree, grid: OccupancyGrid) -> np.ndarray:
+def octomap_states(tree: Any, grid: OccupancyGrid) -> np.ndarray:
     """OctoMap's state per voxel of ``grid``: -1 free, 0 unknown, 1 occupied."""
     states = np.zeros(grid.shape, dtype=np.int8)
     for leaf in tree.begin_leafs():
@@ -102,7 +93,7 @@ def main() -> None:
     points = [octomap_points(d, pinhole, T) for d, T in frames]
 
     def ours(share: float) -> tuple[OccupancyGrid, list[float]]:
-        per_frame = [[] for _ in frames]
+        per_frame: list[list[float]] = [[] for _ in frames]
         for _ in range(args.repeat):
             grid = OccupancyGrid.from_bounds(LO, HI, RES, model)
             for i, (depth, T) in enumerate(frames):
@@ -111,8 +102,8 @@ def main() -> None:
                 per_frame[i].append(time.perf_counter() - start)
         return grid, [statistics.median(t) for t in per_frame]
 
-    def octo() -> tuple[object, list[float]]:
-        per_frame = [[] for _ in frames]
+    def octo() -> tuple[Any, list[float]]:  # an octomap.OcTree (the module is untyped)
+        per_frame: list[list[float]] = [[] for _ in frames]
         for _ in range(args.repeat):
             tree = octomap.OcTree(RES)
             tree.setProbHit(model.hit)

@@ -18,7 +18,7 @@ taken (the first, to carry the track, a view near the goal, the final one), with
 move would cost were its track frames free. The last lines give each
 variant's time per move over the baseline's.
 
-    .venv/bin/python bench/pose_correction.py [--seeds 12] [--workers 1] \
+    .venv/bin/python -m bench.studies.pose_correction [--seeds 12] [--workers 1] \
         [--variants taskcam,baseline]
 """
 
@@ -27,24 +27,15 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import sys
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 from typing import Any
 
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-
-# isort: split
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import write_results
+from bench.common import write_results
 
 TARGET_M, TARGET_DEG = 0.003, 0.2
 # [correction] keys of each variant over the default scenario's
@@ -82,8 +73,8 @@ def akaze(threshold: float = 1e-5, most_bits: float = 120.0) -> Iterator[None]:
 
     contrib = getattr(cv2, "xfeatures2d", None)
     if contrib is None:
-        raise SystemExit("bench/pose_correction.py: --variants akaze needs OpenCV's contrib "
-                         "modules (see the akaze() docstring)")
+        raise SystemExit("bench.studies.pose_correction: --variants akaze needs OpenCV's "
+                         "contrib modules (see the akaze() docstring)")
     init, keypoints = tracking.FeatureFinder.__init__, tracking.FeatureFinder.keypoints
     limit = tracking.DESCRIPTOR_MAX["orb"]  # byte descriptors are looked up as ORB's
 

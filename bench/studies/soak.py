@@ -2,7 +2,7 @@
 --out DIR`` runs it and its run directory audited (sim/experiments/soak.py,
 sim/experiments/audit.py).
 
-Run from the repository root: ``python bench/soak.py`` (500 scenes, every tenth with the
+Run from the repository root: ``python -m bench.studies.soak`` (500 scenes, every tenth with the
 pose correction and the task on, on 2 worker processes). Each finished scene is
 appended to ``--out``/scenes.jsonl as one JSON line at once, so a killed soak loses
 nothing finished and a rerun skips the scenes done. A scene with findings keeps its
@@ -15,26 +15,18 @@ docs/soak.md.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import RESULTS, append, done_records, machine
-
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
+from bench.common import ROOT, append, done_records, write_results
 from sim.experiments.random_scenario import is_heavy
-from sim.experiments.soak import run_scenes, tally
+from sim.experiments.soak import Job, run_scenes, tally
 
-ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "soak.md"
-BEGIN, END = "<!-- soak table: written by bench/soak.py -->", "<!-- end of soak table -->"
+BEGIN, END = "<!-- soak table: written by bench/studies/soak.py -->", "<!-- end of soak table -->"
 
 
 def table(result: dict[str, Any], command: str) -> str:
@@ -101,7 +93,7 @@ def main() -> None:
     stale = [r for r in records.values() if r.get("master_seed", args.seed) != args.seed]
     if stale:
         sys.exit(f"{jsonl} holds scenes of another --seed; use another --out")
-    todo = [(i, None) for i in range(args.scenes) if i not in records]
+    todo: list[Job] = [(i, None) for i in range(args.scenes) if i not in records]
     print(f"soak: {len(records)} of {args.scenes} scenes already in {jsonl}; running "
           f"{len(todo)} on {args.workers} worker(s)", flush=True)
     start = time.perf_counter()
@@ -118,7 +110,7 @@ def main() -> None:
     chosen = [records[i] for i in range(args.scenes) if i in records]
     result = tally(chosen)
     heavy = sum(is_heavy(i) for i in range(args.scenes))
-    command = (f"python bench/soak.py --scenes {args.scenes} --workers {args.workers}"
+    command = (f"python -m bench.studies.soak --scenes {args.scenes} --workers {args.workers}"
                f"{'' if args.seed == 0 else f' --seed {args.seed}'}")
     text = table(result, command)
     print(text)
@@ -128,16 +120,13 @@ def main() -> None:
     if seconds:
         rows.append({"case": "seconds per scene (median, a worker's)", "ours":
                      statistics.median(seconds), "peer": None, "ratio": None, "unit": "s"})
-    payload = {"benchmark": "soak", "machine": machine(), "rows": rows, "command": command,
-               "scenes_requested": args.scenes, "heavy_requested": heavy,
-               "workers": args.workers, "wall_s_this_call": round(wall, 1), **result,
-               "finding_scenes": [
-                   {"index": r["index"], "kinds": sorted({f["kind"] for f in r["findings"]}),
-                    "first": r["findings"][0]["message"][:300]}
-                   for r in chosen if r["findings"]]}
-    path = args.results or RESULTS / "soak.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(payload, indent=2) + "\n")
+    write_results(
+        "soak", rows, to=args.results, command=command, scenes_requested=args.scenes,
+        heavy_requested=heavy, workers=args.workers, wall_s_this_call=round(wall, 1),
+        **result, finding_scenes=[
+            {"index": r["index"], "kinds": sorted({f["kind"] for f in r["findings"]}),
+             "first": r["findings"][0]["message"][:300]}
+            for r in chosen if r["findings"]])
     write_docs(args.docs, text)
 
 

@@ -3,7 +3,7 @@
 IK-as-path (the earlier planner: mink's collision-avoiding IK from where the
 robot stands, its iterates the path, checked densely) on the same candidates.
 
-Run from the repository root: ``python bench/planning.py`` (``--scenes N`` per density,
+Run from the repository root: ``python -m bench.peers.planning`` (``--scenes N`` per density,
 default 8; ``--top K`` candidates, default 25). Scenes are Table 1's
 (scenarios/table1.toml's sweep: its seeds, densities 5 / 20 / 35 %, its generated
 obstacles), mapped by the episode's mapping stage. For the first robot, the rating
@@ -33,23 +33,12 @@ import argparse
 import sys
 import time
 from collections import Counter
-from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import print_table, write_results
-
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
-
-resolve_gl_backend()  # an entry point: the GL backend before anything loads mujoco
-
-# isort: split
-
-import mujoco
-
+from bench.common import SCENARIOS, print_table, write_results
 from placement import detectable
 from sim.config.sweep import load_sweep
 from sim.experiments.runner import trial_specs
@@ -67,7 +56,7 @@ from sim.world.planning import ArmPlanner
 from sim.world.render import Renderer
 from sim.world.scene import Robot, Scene
 
-TABLE1 = Path(__file__).resolve().parent.parent / "scenarios" / "table1.toml"
+TABLE1 = SCENARIOS / "table1.toml"
 
 
 def ik_as_path(scene: Scene, belief: mujoco.MjData, robot: Robot, look_at: np.ndarray,
