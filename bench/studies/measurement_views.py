@@ -107,7 +107,7 @@ class Measured:
     covariance: np.ndarray | None = None  # of the displacement (world, m^2), if it has one
 
 
-class _SameImages:
+class StoredImages:
     """What ``InsertionTask`` renders with, serving the view's images: crops of the
     whole sharp renders (the task blurs them itself); segmentation from the renderer."""
 
@@ -329,7 +329,7 @@ def absolute(site: Site, view: View) -> Measured:
     camera's SGBM points through its believed pose; the slot where the holes' frame,
     sighted in the same (blurred) images through that pose, puts the slot's CAD place."""
     robot, task = site.robot, site.task
-    task.renderer = _SameImages(site.renderer, view)
+    task.renderer = StoredImages(site.renderer, view)
     camera = Camera(robot, view.believed, POSE_SD_M, "corrected")
     pose, why = task.measure([camera], view.guess)
     frame, sighted = holes_frame(site, view)
@@ -362,7 +362,7 @@ def relative(site: Site, view: View) -> Measured:
     believed[:3, 3] += rng.normal(0.0, SLOT_FRAME_SD[0], 3)
     turn = Rotation.from_rotvec(rng.normal(0.0, SLOT_FRAME_SD[1], 3)).as_matrix()
     believed[:3, :3] = turn @ believed[:3, :3]
-    task.renderer = _SameImages(site.renderer, view)
+    task.renderer = StoredImages(site.renderer, view)
     camera = Camera(robot, view.believed, POSE_SD_M, "corrected", math.radians(POSE_SD_DEG))
     measurer = RelativeMeasurer(task.rig, task.panel_boxes, task.slot_boxes,
                                 SlotBelief(believed, SLOT_FRAME_SD))

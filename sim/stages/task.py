@@ -96,7 +96,9 @@ def execution_sd(cfg: TaskConfig, length_m: float) -> float:
 
 # The absolute measurement's panel pose is this good (m, rad per axis): its CAD fit to
 # stereo points errs 6-16 mm laterally (median-95th percentile) with the slot's error in
-# at 0.8-1.2 m (docs/measurement.md); it only starts the relative fits
+# at 0.8-1.2 m (docs/measurement.md), and is turned 1.3-1.5 deg (median; 6.6 deg at the
+# 95th percentile, a tail no Gaussian holds) at 0.5-1.2 m, whatever its start's turn
+# (bench/studies/absolute_pose.py); it only starts the relative fits
 ABSOLUTE_SD = (0.01, math.radians(2.0))
 
 
