@@ -37,7 +37,13 @@ from calibration.edge_model import (
 from mapping import opencv_pose
 from sim.config.scenario import ObstacleConfig, load_scenario
 from sim.config.schema import ScenarioError
-from sim.stages.relative import PanelBelief, RelativeMeasurer, level_covariance, levelled
+from sim.stages.relative import (
+    GATE_CHI2,
+    PanelBelief,
+    RelativeMeasurer,
+    level_covariance,
+    levelled,
+)
 from sim.stages.task_images import SEEN_SCALE
 from sim.stages.task_result import Camera
 from sim.world.render import Renderer, camera_pinhole, camera_pose
@@ -459,3 +465,35 @@ def test_a_bar_in_front_hides_the_panels_edges_behind_it_and_the_fit_keeps_to_th
         assert fit.ok, fit.why
         err = float(np.linalg.norm(fit.pose[:3, 3] - panel[:3, 3]))
         assert err < 0.0015, err
+
+
+def test_a_pose_the_belief_holds_impossible_is_refused_by_hand():
+    """The gate on a measured panel pose against the task's belief: chi-square with
+    three degrees of freedom at 0.999, in position and in rotation, both uncertainties
+    summed (hand-computed cases either side of it)."""
+    from scipy.stats import chi2
+
+    assert abs(GATE_CHI2 - chi2.ppf(0.999, 3)) < 0.01
+    yaw_sd = math.radians(6.0)  # the lying pose's: yaw known to 6 deg, tilt to 0.5 deg
+    information = np.diag([1 / math.radians(0.5) ** 2] * 2 + [1 / yaw_sd ** 2])
+    belief = PanelBelief(np.eye(4), 0.03, information)
+    sd = (0.01, math.radians(2.0))
+
+    def turned(deg: float, axis: int, shift: tuple[float, float, float] = (0, 0, 0)):
+        pose = np.eye(4)
+        rotvec = np.zeros(3)
+        rotvec[axis] = math.radians(deg)
+        pose[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+        pose[:3, 3] = shift
+        return pose
+
+    # 2 sd of yaw: (2 * 6.32)^2 / 6.32^2 = 4 with 6.32 deg = hypot(6, 2)
+    assert belief.implausible(turned(2 * math.hypot(6, 2), 2), sd) is None
+    # 82 deg about the vertical, a flat panel's outline fitted a quarter turn off: refused
+    why = belief.implausible(turned(82, 2), sd)
+    assert why is not None and "82 deg" in why
+    # the same 12.6 deg that is 2 sd of yaw is 6 sd of a tilt (hypot(0.5, 2) = 2.06 deg)
+    assert belief.implausible(turned(12.6, 0), sd) is not None
+    # position: 12 cm is 3.8 sd of hypot(3, 1) = 3.16 cm (chi-square 14.4), 13 cm 4.1
+    assert belief.implausible(turned(0, 2, (0.12, 0, 0)), sd) is None
+    assert belief.implausible(turned(0, 2, (0.0, 0.13, 0)), sd) is not None

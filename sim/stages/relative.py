@@ -62,6 +62,10 @@ HOLE_CENTRE_SD_PX = 0.15
 # an uncorrected camera's rotation is uncertain by this much (rad): the positioning
 # error's scale in the default scenario (0.5 deg)
 UNCORRECTED_ROTATION_SD = math.radians(0.5)
+# A measured panel pose the belief holds this unlikely, in position or in orientation
+# (chi-square, 3 degrees of freedom: scipy.stats.chi2.ppf(0.999, 3)), is a wrong fit, not
+# the panel: one right pose in 1000 is refused
+GATE_CHI2 = 16.27
 
 
 Images = tuple[np.ndarray, np.ndarray] | str  # a camera's stereo pair, or why it has none
@@ -197,6 +201,21 @@ class PanelBelief:
     @property
     def rotation_sd_rad(self) -> float:
         return largest_sd(np.linalg.inv(self.rotation_information))
+
+    def implausible(self, pose: np.ndarray, sd: tuple[float, float]) -> str | None:
+        """Why ``pose`` (world), measured uncertain by ``sd`` (m, rad per axis), cannot be
+        the panel this belief holds: its position or its orientation beyond GATE_CHI2 of
+        both uncertainties together (None if it can be)."""
+        moved = pose[:3, 3] - self.pose[:3, 3]
+        d_position = float(moved @ moved) / (self.position_sd_m ** 2 + sd[0] ** 2)
+        turn = Rotation.from_matrix(pose[:3, :3] @ self.pose[:3, :3].T).as_rotvec()
+        spread = np.linalg.inv(self.rotation_information) + sd[1] ** 2 * np.eye(3)
+        d_rotation = float(turn @ np.linalg.solve(spread, turn))
+        if max(d_position, d_rotation) <= GATE_CHI2:
+            return None
+        return (f"{np.linalg.norm(moved) * 1e3:.0f} mm and "
+                f"{math.degrees(float(np.linalg.norm(turn))):.0f} deg from the belief "
+                f"(chi-square {d_position:.0f} and {d_rotation:.0f}, at most {GATE_CHI2:.1f})")
 
     def observe_rotation(self, R_world_panel: np.ndarray, information: np.ndarray) -> None:
         """Fuse one fit's orientation (world) with what its edges say about it (the

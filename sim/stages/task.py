@@ -231,15 +231,20 @@ class InsertionTask(TaskImages):
         T = opencv_pose(cam.believed)
         return in_cam @ T[:3, :3].T + T[:3, 3]
 
-    def _relocate(self, cameras: list[Camera], belief: PanelBelief) -> None:
+    def _relocate(self, cameras: list[Camera], belief: PanelBelief) -> str | None:
         """Where the relative measurement's fits start when the belief is coarse (after
         the open-loop carry, or a step that measured nothing): the absolute measurement's
-        panel pose, if it finds one, uncertain by ABSOLUTE_SD."""
+        panel pose, if it finds one the belief holds possible, uncertain by ABSOLUTE_SD;
+        why the belief was kept, if it found another."""
         pose, _ = self.measure(cameras, belief.pose)
-        if pose is not None:
+        if pose is None:
+            return None
+        why = belief.implausible(pose, ABSOLUTE_SD)
+        if why is None:
             belief.pose = pose.copy()
             belief.position_sd_m = ABSOLUTE_SD[0]
             belief.rotation_information = np.eye(3) / ABSOLUTE_SD[1] ** 2
+        return why
 
     def measure_relative(self, cameras: list[Camera], measurer: RelativeMeasurer,
                          panel: PanelBelief,
@@ -323,8 +328,9 @@ class InsertionTask(TaskImages):
             expect: tuple[np.ndarray, np.ndarray] | None = None  # the prediction's start
             agreed = True  # the cameras fused agree within chance
             if cfg.measurement == "relative":
+                kept = None
                 if relocate:  # the first step, or after one that measured nothing
-                    self._relocate(cameras, belief)
+                    kept = self._relocate(cameras, belief)
                 found = self.measure_relative(cameras, measurer, belief, predicted)
                 relocate = found.fused is None
                 why = found.why
@@ -332,6 +338,8 @@ class InsertionTask(TaskImages):
                 truth = self.panel[:3, 3] - self.data.site_xpos[self.slot_site]
                 record: dict[str, Any] = {"step": step, "cameras": found.cameras,
                                           "true_displacement": truth.round(6).tolist()}
+                if kept is not None:  # the absolute measurement's pose, refused
+                    record["absolute_refused"] = kept
                 if found.fused is not None:
                     displacement, covariance = found.fused.displacement, found.fused.covariance
                     expect = prediction_start(found.fused)
