@@ -146,14 +146,14 @@ def refine(camera: StereoCamera, keyframes: list[Keyframe], points: np.ndarray,
     poses = [np.block([[R[k], t[k][:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])
              for k in range(len(keyframes))]
     r = problem.residuals(fit.x) * pixel_sigma
-    cov = _pose_covariance(fit.jac, problem.n_pose)
+    cov = marginal_pose_covariance(fit.jac, problem.n_pose)
     block = {k: slice(6 * j, 6 * j + 6) for j, k in enumerate(problem.free)}
     covs = [np.zeros((6, 6)) if f.known else cov[block[k], block[k]]
             for k, f in enumerate(keyframes)]
     return BundleResult(poses, pts, covs, float(np.sqrt(np.mean(r ** 2))), float(fit.cost))
 
 
-def _pose_covariance(jac: Any, n_pose: int) -> np.ndarray:
+def marginal_pose_covariance(jac: Any, n_pose: int) -> np.ndarray:
     """The poses' marginal covariance (n_pose x n_pose; rotation vector and translation
     of each g01) from the Jacobian of the whitened residuals: the inverse of the Schur
     complement of the fiducials' 3x3 blocks in JᵀJ (block-diagonal: a residual sees one

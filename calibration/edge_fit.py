@@ -19,7 +19,7 @@ the rows constrain depth, and every edge is used.
 
 The fit's covariance counts the edge points' errors as they are: each point's own noise,
 and a bias that all points of one edge in one image share (aliasing and blur along it),
-both measured from the fit's own residuals (see ``_covariance``); points along one edge
+both measured from the fit's own residuals (see ``edge_covariance``); points along one edge
 are therefore not independent measurements, and a direction held by a few edges is as
 uncertain as those edges are.
 
@@ -306,11 +306,11 @@ def _refine(frames: list[np.ndarray], boxes: Boxes, rig: StereoRig, pose: np.nda
     elif (explained := int(((w > 0) & free).sum())) < MIN_EXPLAINED * searchable:
         why = (f"{explained} of the {searchable} edge points the model shows apart from "
                f"its other edges agree with it (at least {MIN_EXPLAINED:.0%} needed)")
-    covariance, information = _covariance(J, r, w, scale, edge_of, merge, prior)
+    covariance, information = edge_covariance(J, r, w, scale, edge_of, merge, prior)
     return EdgeFit(pose, covariance, inliers, rms, middle, cost, matched, why, information)
 
 
-def _covariance(J: np.ndarray, r: np.ndarray, w: np.ndarray, scale: float,
+def edge_covariance(J: np.ndarray, r: np.ndarray, w: np.ndarray, scale: float,
                 edge_of: np.ndarray, merge: np.ndarray, prior: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
     """The fit's covariance (6x6) and what its edges alone say (their information), with

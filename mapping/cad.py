@@ -133,7 +133,7 @@ def voxels_of(grid: OccupancyGrid, model: BoxModel, pose: np.ndarray) -> np.ndar
 MAX_EVALUATIONS = 60  # per loss scale: a good fit takes a few dozen; a bad one never ends
 
 
-def _residuals(model: BoxModel, pose: np.ndarray, points: np.ndarray,
+def fit_residuals(model: BoxModel, pose: np.ndarray, points: np.ndarray,
                ahead: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """The fit's residuals (m) at ``pose``: the points' distances to the model, then
     how deep each point ``ahead`` lies inside it (0 outside); and their derivatives by
@@ -153,7 +153,7 @@ def _residuals(model: BoxModel, pose: np.ndarray, points: np.ndarray,
     return np.concatenate(values), np.vstack(rows)
 
 
-def _left_jacobian(w: np.ndarray) -> np.ndarray:
+def pose_left_jacobian(w: np.ndarray) -> np.ndarray:
     """(6, 6): how a rotation vector ``w`` and a translation map to the tangent at
     exp(w) (SO(3)'s left Jacobian, and the identity for the translation)."""
     theta = float(np.linalg.norm(w))
@@ -212,7 +212,7 @@ def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
             key = x.tobytes()
             if key not in last:
                 last.clear()
-                last[key] = _residuals(model, pose_of(x), points, ahead)
+                last[key] = fit_residuals(model, pose_of(x), points, ahead)
             return last[key]
 
         def full(x: np.ndarray) -> np.ndarray:
@@ -227,7 +227,7 @@ def fit_model(model: BoxModel, points: np.ndarray, initial: np.ndarray,
 
         def jacobian(x: np.ndarray, evaluate: Any = evaluate) -> np.ndarray:
             x = full(x)
-            return (evaluate(x)[1] @ _left_jacobian(x[:3]))[:, chosen]
+            return (evaluate(x)[1] @ pose_left_jacobian(x[:3]))[:, chosen]
 
         found = least_squares(residuals, np.zeros(int(chosen.sum())), jac=jacobian,
                               loss="soft_l1", f_scale=scale,

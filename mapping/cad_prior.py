@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from .cad import BoxModel, _residuals, fit_model, to_object, voxels_of
+from .cad import BoxModel, fit_model, fit_residuals, to_object, voxels_of
 from .errors import MappingError
 from .grid import OccupancyGrid
 
@@ -218,7 +218,7 @@ def fit_lying_pose(grid: OccupancyGrid, model: BoxModel, nominal: np.ndarray,
     pose, _ = fit_model(model, centres, start,
                         loss_scales_m=tuple(f * res for f in LOSS_SCALES_VOXELS),
                         free=PLANAR)
-    d, J = _residuals(model, pose, centres, None)
+    d, J = fit_residuals(model, pose, centres, None)
     median = float(np.median(np.abs(d)))
     if median > MAX_MEDIAN_VOXELS * res:
         return None, (f"the model fits the {len(centres)} occupied voxels poorly: median "

@@ -43,7 +43,7 @@ def _start(o: float, d: float, t0: float, n: int) -> tuple[int, int, float, floa
 
 
 @nb.njit(cache=True)
-def _walk(o: np.ndarray, d: np.ndarray, length: float, shape: tuple[int, int, int],
+def walk_segment(o: np.ndarray, d: np.ndarray, length: float, shape: tuple[int, int, int],
           out: np.ndarray, stop: np.ndarray, start: float = 0.0) -> int:
     """Write the flat indices that the segment from ``start`` to ``length`` crosses into
     ``out``; return how many. With a non-empty ``stop`` (flat bool), end after the first
@@ -88,7 +88,7 @@ def _walk(o: np.ndarray, d: np.ndarray, length: float, shape: tuple[int, int, in
     return count
 
 
-def _max_steps(shape: tuple[int, int, int]) -> int:
+def max_ray_voxels(shape: tuple[int, int, int]) -> int:
     return shape[0] + shape[1] + shape[2] + 3
 
 
@@ -112,12 +112,12 @@ def _traverse(origins: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
     buf = np.empty(max_steps, dtype=np.int64)
     no_stop = np.zeros(0, dtype=np.bool_)
     for r in range(n):
-        counts[r] = _walk(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
+        counts[r] = walk_segment(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
     rays = np.empty(counts.sum(), dtype=np.int64)
     voxels = np.empty(counts.sum(), dtype=np.int64)
     at = 0
     for r in range(n):
-        c = _walk(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
+        c = walk_segment(origins[r], dirs[r], lengths[r], shape, buf, no_stop)
         rays[at:at + c] = r
         voxels[at:at + c] = buf[:c]
         at += c
@@ -129,7 +129,7 @@ def traverse(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarray,
     """Every voxel each segment crosses, as (ray index, flat voxel index) pairs in order
     along each ray. ``origins`` (n, 3) or (3,), ``dirs`` (n, 3), ``lengths`` (n,)."""
     shape, origins, dirs, lengths = _prepare(shape, origins, dirs, lengths)
-    return _traverse(origins, dirs, lengths, shape, _max_steps(shape))
+    return _traverse(origins, dirs, lengths, shape, max_ray_voxels(shape))
 
 
 @nb.njit(cache=True, parallel=True)
@@ -140,7 +140,7 @@ def _first_hits(origins: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
     for chunk in nb.prange((n + CHUNK - 1) // CHUNK):
         buf = np.empty(max_steps, dtype=np.int64)
         for r in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-            c = _walk(origins[r], dirs[r], lengths[r], shape, buf, blocked)
+            c = walk_segment(origins[r], dirs[r], lengths[r], shape, buf, blocked)
             hit[r] = c > 0 and blocked[buf[c - 1]]
     return hit
 
@@ -150,7 +150,7 @@ def first_hits(shape: tuple[int, int, int], origins: np.ndarray, dirs: np.ndarra
     """Boolean per ray: does its segment enter a voxel where ``blocked`` (flat) is True?"""
     shape, origins, dirs, lengths = _prepare(shape, origins, dirs, lengths)
     return _first_hits(origins, dirs, lengths, shape, np.ascontiguousarray(blocked).ravel(),
-                       _max_steps(shape))
+                       max_ray_voxels(shape))
 
 
 @nb.njit(cache=True, inline="always")
@@ -277,7 +277,7 @@ def _mark_free_image(origin: np.ndarray, R: np.ndarray, fx: float, fy: float, cx
                     t_b = min(minimum[at], band_end[lv])
                 if t_b > t_a:
                     _pixel_ray(ray, cols[0], stride, fx, fy, cx, cy, R, direction)
-                    c = _walk(origin, direction, t_b, shape, buf, no_stop, t_a)
+                    c = walk_segment(origin, direction, t_b, shape, buf, no_stop, t_a)
                     _stamp_free(stamp, buf, c, occupied_code, free_code)
                 if lv > 0:
                     for cv in range(2 * bv, min(2 * bv + 2, rows[lv - 1])):
@@ -310,4 +310,4 @@ def mark_free_image(shape: tuple[int, int, int], origin: np.ndarray, R: np.ndarr
                      np.ascontiguousarray(R, dtype=np.float64), fx, fy, cx, cy, stride,
                      np.ascontiguousarray(lengths, dtype=np.float32),
                      np.ascontiguousarray(band_end, dtype=np.float64), shape, stamp,
-                     occupied_code, free_code, _max_steps(shape))
+                     occupied_code, free_code, max_ray_voxels(shape))

@@ -31,7 +31,7 @@ import numpy as np
 
 from .camera import Pinhole
 from .grid import OccupancyGrid
-from .raycast import _max_steps, _walk
+from .raycast import max_ray_voxels, walk_segment
 
 GAINS = ("entropy", "unobserved", "rear_side")
 Gain = Literal["entropy", "unobserved", "rear_side"]
@@ -80,7 +80,7 @@ def _footprint(origin: np.ndarray, dirs: np.ndarray, length: float,
     buf = np.empty(max_steps, dtype=np.int64)
     no_stop = np.zeros(0, dtype=np.bool_)
     for r in range(len(dirs)):
-        c = _walk(origin, dirs[r], length, shape, buf, no_stop, 0.0)
+        c = walk_segment(origin, dirs[r], length, shape, buf, no_stop, 0.0)
         visible = 1.0
         for s in range(c):
             v = buf[s]
@@ -135,7 +135,7 @@ class GainModel:
         out = np.zeros(self.grid.size)
         origin, dirs, length = self._cast(view)
         _footprint(origin, dirs, length, self.grid.shape, self.opacity, self.state,
-                   GAINS.index(gain), out, _max_steps(self.grid.shape))
+                   GAINS.index(gain), out, max_ray_voxels(self.grid.shape))
         return out
 
     def gains(self, views: list[View], gain: Gain = "entropy") -> np.ndarray:

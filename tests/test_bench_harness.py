@@ -1,8 +1,9 @@
 """The bench as a harness: every module under bench/ imports without running anything,
 every script is a ``python -m bench.GROUP.NAME`` entry point with a ``main()`` and is
 listed in docs/benchmarks.md, the shared set-up (paths, GL backend) is the ``bench``
-package's alone, no bench file edits ``sys.path`` or imports another module's private
-names, and every bench command or path the docs and sources name exists."""
+package's alone, no bench file edits ``sys.path``, and every bench command or path the
+docs and sources name exists (no private name imported: tests/test_boundary.py, over
+the whole tree)."""
 
 from __future__ import annotations
 
@@ -117,18 +118,6 @@ def test_no_bench_file_edits_sys_path_or_sets_up_on_its_own(path):
         if isinstance(node, ast.Name) and path != BENCH / "__init__.py":
             assert node.id != "resolve_gl_backend", (
                 f"{path.name}:{node.lineno} chooses the GL backend: bench/__init__.py does")
-
-
-@pytest.mark.parametrize("path", BENCH_FILES, ids=lambda p: str(p.relative_to(ROOT)))
-def test_no_bench_file_imports_a_private_name(path):
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom) and node.module != "__future__":
-            private = [a.name for a in node.names if a.name.startswith("_")]
-            assert not private, f"{path.name}:{node.lineno} imports {private} from {node.module}"
-        if isinstance(node, ast.Import):
-            private = [a.name for a in node.names
-                       if any(p.startswith("_") for p in a.name.split("."))]
-            assert not private, f"{path.name}:{node.lineno} imports {private}"
 
 
 def test_bench_commands_and_paths_named_anywhere_exist():

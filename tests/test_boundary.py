@@ -8,9 +8,11 @@ walking the packages, so a new module is held to it without being listed here.
 
 from __future__ import annotations
 
+import ast
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 PACKAGES = ("mapping", "placement", "calibration")
 FORBIDDEN = ("mujoco", "sim")
@@ -58,3 +60,36 @@ def test_the_check_sees_mujoco_and_sim_when_they_are_imported():
     (the test above does not pass for want of seeing)."""
     leaked = forbidden(fresh_import("mujoco", "sim.world.gl", walk=False)["loaded"])
     assert "mujoco" in leaked and "sim.world.gl" in leaked, leaked
+
+
+ROOT = Path(__file__).resolve().parent.parent
+SOURCES = sorted(p for top in ("sim", "mapping", "placement", "calibration", "bench", "tests",
+                               "examples") for p in (ROOT / top).rglob("*.py"))
+
+
+def private_imports(source: str) -> list[tuple[int, str]]:
+    """The private names (``_x``, not dunders) a module's source imports from another
+    module, with their lines."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.module != "__future__":
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.Import):
+            names = [part for a in node.names for part in a.name.split(".")]
+        else:
+            continue
+        found += [(node.lineno, n) for n in names
+                  if n.startswith("_") and not (n.startswith("__") and n.endswith("__"))]
+    return found
+
+
+def test_no_module_imports_another_modules_private_name():
+    assert len(SOURCES) > 100
+    offenders = {str(p.relative_to(ROOT)): hits for p in SOURCES
+                 if (hits := private_imports(p.read_text()))}
+    assert not offenders, offenders
+
+
+def test_the_check_sees_a_private_import():
+    assert private_imports("from a.b import c, _d\nimport e._f\nfrom g import __version__") \
+        == [(1, "_d"), (2, "_f")]

@@ -114,7 +114,7 @@ def test_analytic_jacobian_matches_finite_differences():
     """The fit's Jacobian (rotation vector on the left, then translation) against
     central differences, for a two-box model, points inside and outside, and the
     one-sided 'ahead' residuals."""
-    from mapping.cad import _left_jacobian, _residuals
+    from mapping.cad import fit_residuals, pose_left_jacobian
 
     model = BoxModel(np.array([[0.0, 0.0, 0.075], [0.05, 0.0, 0.02]]),
                      np.array([[0.005, 0.1, 0.075], [0.01, 0.02, 0.02]]))
@@ -132,10 +132,10 @@ def test_analytic_jacobian_matches_finite_differences():
     for x in (np.zeros(6), np.array([0.1, -0.2, 0.15, 0.01, 0.0, -0.02])):
         step = 1e-7
         numeric = np.column_stack([
-            (_residuals(model, pose_of(x + e), points, ahead)[0]
-             - _residuals(model, pose_of(x - e), points, ahead)[0]) / (2 * step)
+            (fit_residuals(model, pose_of(x + e), points, ahead)[0]
+             - fit_residuals(model, pose_of(x - e), points, ahead)[0]) / (2 * step)
             for e in step * np.eye(6)])
-        analytic = _residuals(model, pose_of(x), points, ahead)[1] @ _left_jacobian(x[:3])
+        analytic = fit_residuals(model, pose_of(x), points, ahead)[1] @ pose_left_jacobian(x[:3])
         assert np.abs(numeric).max() > 0.5
         # equal but for the few points within a step of a kink (an edge or the surface)
         close = np.all(np.abs(numeric - analytic) < 1e-6, axis=1)

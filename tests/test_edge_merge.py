@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.edge_fit import _covariance
+from calibration.edge_fit import edge_covariance
 from calibration.edge_search import (
     MERGE_CONTRASTS,
     MERGE_PHASES,
@@ -76,9 +76,9 @@ def test_a_merged_edge_widens_the_covariance_by_its_own_pull_by_hand():
     scale = 0.5
     w = np.full(80, 1.0 / scale ** 2)  # every point an inlier, Tukey's weight 1
     prior = np.eye(6) * 1e-6
-    plain, _ = _covariance(J, r, w, scale, edges, np.zeros(80), prior)
+    plain, _ = edge_covariance(J, r, w, scale, edges, np.zeros(80), prior)
     merge = np.where(edges == 2, 0.5, 0.0)
-    merged, _ = _covariance(J, r, w, scale, edges, merge, prior)
+    merged, _ = edge_covariance(J, r, w, scale, edges, merge, prior)
     H = J.T @ (w[:, None] * J) + prior
     pull = np.zeros(6)
     pull[2] = 10 * w[0]

@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibration.bundle import BundleProblem, Keyframe, _pose_covariance, refine, triangulate
+from calibration.bundle import (
+    BundleProblem,
+    Keyframe,
+    marginal_pose_covariance,
+    refine,
+    triangulate,
+)
 from calibration.ekf import StereoCamera
 from calibration.fiducials import (
     Candidate,
@@ -126,7 +132,7 @@ def test_bundle_pose_covariance_is_the_pose_block_of_the_whole_inverse():
     J = problem.jacobian(problem.x0)
     whole = np.linalg.inv((J.T @ J).toarray())[:problem.n_pose, :problem.n_pose]
     assert problem.n_pose == 12
-    assert np.allclose(_pose_covariance(J, problem.n_pose), whole, rtol=1e-6,
+    assert np.allclose(marginal_pose_covariance(J, problem.n_pose), whole, rtol=1e-6,
                        atol=1e-9 * np.abs(whole).max())
 
 

@@ -13,7 +13,14 @@ import pytest
 from mapping import drive_lengths
 from placement.reach import ReachCells, build_reach_map
 from sim.config.scenario import parse_scenario
-from sim.world.arm import SelfClear, _load, _save, arm_key, camera_chain, scene_arm
+from sim.world.arm import (
+    SelfClear,
+    arm_key,
+    camera_chain,
+    load_reach_map,
+    save_reach_map,
+    scene_arm,
+)
 from sim.world.ik import solve_camera_pose
 from sim.world.scene import build_scene
 from sim.world.standing import Places
@@ -141,12 +148,12 @@ def test_a_small_map_is_seeded_and_round_trips_through_its_file(tmp_path):
     r, bearing = np.hypot(pos[:, 0], pos[:, 1]), np.arctan2(pos[:, 1], pos[:, 0])
     assert np.array_equal(cells.keys(r, pos[:, 2], -rot[:, :, 2], bearing), a.keys)
     path = tmp_path / "map.npz"
-    _save(path, a)
-    c = _load(path)
+    save_reach_map(path, a)
+    c = load_reach_map(path)
     assert c is not None and c.cells == a.cells and np.array_equal(c.keys, a.keys)
     assert np.array_equal(c.joints, a.joints) and not list(tmp_path.glob("*.tmp"))
     path.write_bytes(path.read_bytes()[:100])  # cut short: built again, not read
-    assert _load(path) is None
+    assert load_reach_map(path) is None
 
 
 def test_the_maps_key_follows_the_arm_not_the_scene():

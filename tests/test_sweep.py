@@ -24,7 +24,7 @@ from sim.config.scenario import SCENARIO_DIR
 from sim.config.sweep import load_sweep
 from sim.experiments.report import cells, markdown, report, wilson
 from sim.experiments.results import Results
-from sim.experiments.runner import _on_pool, run_sweep, trial_specs
+from sim.experiments.runner import run_on_pool, run_sweep, trial_specs
 from sim.experiments.trial import CRASH_TRIAL_ENV, run_trial
 
 TINY = (SCENARIO_DIR / "smoke.toml").read_text()
@@ -308,7 +308,7 @@ def test_a_trial_that_fails_is_named_even_from_a_worker(tiny):
         run_trial(spec)
     assert named in here.value.__notes__[0]
     with pytest.raises(ValueError, match="not in") as there:
-        list(_on_pool([spec], 2))
+        list(run_on_pool([spec], 2))
     assert named in there.value.__notes__[0]
 
 

@@ -21,7 +21,7 @@ from sim.stages.place import REJECTED_RADIUS_M
 from sim.stages.record import Recorder
 from sim.stages.relative import SlotBelief
 from sim.stages.task import InsertionTask, Replacement, panel_model
-from sim.stages.task_images import BLUR_MARGIN_PX, MIN_POINTS, _measuring_window
+from sim.stages.task_images import BLUR_MARGIN_PX, MIN_POINTS, stereo_window
 from sim.stages.task_result import Camera, TaskResult
 from sim.stages.world import new_grid
 from sim.world.ik import solve_camera_pose
@@ -260,7 +260,7 @@ def test_the_left_view_rendered_around_the_panel_finds_what_the_whole_image_does
             _, _, near, (rows, cols) = found
             overlap = (near & whole).sum() / (near | whole).sum()
             assert overlap > 0.99
-            assert (rows, cols) == _measuring_window(whole, BLUR_MARGIN_PX)
+            assert (rows, cols) == stereo_window(whole, BLUR_MARGIN_PX)
             across = whole[:, 0].any() or whole[:, -1].any()  # the image's edge cuts it
             outcomes.append("edge" if across else "in")
     assert {"in", "edge", "out"} <= set(outcomes), outcomes

@@ -143,7 +143,7 @@ def _local(specs: list[TrialSpec], workers: int
     while left:
         finished: set[int] = set()  # ids of the specs whose records were yielded
         try:
-            for spec, record in _on_pool(left, workers):
+            for spec, record in run_on_pool(left, workers):
                 finished.add(id(spec))
                 yield record
             return
@@ -213,7 +213,7 @@ def _in_own_process(spec: TrialSpec) -> dict[str, Any] | str:
     return dict(value)
 
 
-def _on_pool(specs: list[TrialSpec], workers: int
+def run_on_pool(specs: list[TrialSpec], workers: int
              ) -> Iterator[tuple[TrialSpec, dict[str, Any]]]:
     """Each spec with its trial's record, run on a pool of ``workers`` processes, in the
     order they finish."""

@@ -71,7 +71,7 @@ def _union(a: tuple[slice, slice], b: tuple[slice, slice] | None) -> tuple[slice
             slice(min(a[1].start, b[1].start), max(a[1].stop, b[1].stop)))
 
 
-def _measuring_window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
+def stereo_window(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
     """The window around ``mask`` measuring uses, with the stereo's disparity range."""
     return measuring_window(mask, margin, SETTINGS.num_disparities)
 
@@ -102,7 +102,7 @@ class TaskImages:
         silhouette = np.zeros((h, w), bool)  # its bounding box, in the image's pixels
         silhouette[int(ys.min() * sy):int(np.ceil((ys.max() + 1) * sy)),
                    int(xs.min() * sx):int(np.ceil((xs.max() + 1) * sx))] = True
-        around = _union(_measuring_window(silhouette, BLUR_MARGIN_PX + COARSE), include)
+        around = _union(stereo_window(silhouette, BLUR_MARGIN_PX + COARSE), include)
         for rendered in (around, (slice(0, h), slice(0, w))):
             sharp = np.zeros((h, w, 3), np.uint8)
             depth = np.full((h, w), np.inf, np.float32)
@@ -110,7 +110,7 @@ class TaskImages:
             near = panel_mask(sharp)  # where to look: the lens blurs only a few pixels
             if near.sum() < MIN_POINTS:
                 return None
-            rows, cols = _union(_measuring_window(near, BLUR_MARGIN_PX), include)
+            rows, cols = _union(stereo_window(near, BLUR_MARGIN_PX), include)
             if all(outer.start <= inner.start and inner.stop <= outer.stop
                    for outer, inner in zip(rendered, (rows, cols), strict=True)):
                 break

@@ -163,7 +163,7 @@ def cache_dir() -> Path:
     return Path(base) / "taskcam" / "reach"
 
 
-def _load(path: Path) -> ReachMap | None:
+def load_reach_map(path: Path) -> ReachMap | None:
     try:
         with np.load(path) as f:
             cells = ReachCells(**json.loads(str(f["cells"])))
@@ -172,7 +172,7 @@ def _load(path: Path) -> ReachMap | None:
         return None  # missing, or cut short: built again
 
 
-def _save(path: Path, reach: ReachMap) -> None:
+def save_reach_map(path: Path, reach: ReachMap) -> None:
     """Write atomically: a file of its own in the same folder, then renamed over the
     map's name (workers building the same map at once each write a whole file)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -192,7 +192,7 @@ def scene_arm(scene: Scene, samples: int = SAMPLES, cells: ReachCells | None = N
     built = 0.0
     if key not in _MEMO:
         path = cache_dir() / f"{key}.npz"
-        reach = _load(path)
+        reach = load_reach_map(path)
         if reach is None:
             started = time.perf_counter()
             reach = build_reach_map(camera_chain(scene.model, robot, MAP_BASELINE_M),
@@ -200,6 +200,6 @@ def scene_arm(scene: Scene, samples: int = SAMPLES, cells: ReachCells | None = N
                                     np.random.default_rng(int(key[:8], 16)), samples, cells,
                                     home=home)
             built = time.perf_counter() - started
-            _save(path, reach)
+            save_reach_map(path, reach)
         _MEMO[key] = reach
     return Arm(ARM_JOINTS, scene.scenario.robots.mount, _MEMO[key], built)
