@@ -144,7 +144,7 @@ def sweep(args: argparse.Namespace) -> int:
 
 
 def report(args: argparse.Namespace) -> int:
-    from sim.experiments.report import report as tables
+    from sim.experiments.report_files import write_report as tables
 
     if not args.db.is_file():
         found = "a directory" if args.db.is_dir() else "no such file"

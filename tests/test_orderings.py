@@ -8,7 +8,7 @@ import math
 import pytest
 
 from sim.experiments.orderings import Ordering, claims, markdown, mcnemar, orderings_in
-from sim.experiments.report import report
+from sim.experiments.report_files import write_report
 from sim.experiments.results import Results
 
 
@@ -92,7 +92,7 @@ def test_orderings_on_a_database_against_hand_counts(small_db, tmp_path):
     observed = table(6)
     p = sum(table(k) for k in range(12) if table(k) <= observed * (1 + 1e-9))
     assert step.p_value == pytest.approx(p) and p > 0.5
-    out = report(small_db, tmp_path / "out")
+    out = write_report(small_db, tmp_path / "out")
     assert out["orderings"] == markdown(orderings_in(small_db))
     assert (tmp_path / "out" / "small-orderings.md").read_text() == out["orderings"]
     assert "- placement: 1 of 2 (not: 1 too close)" in out["orderings"]

@@ -22,7 +22,8 @@ import pytest
 from sim.cli import main
 from sim.config.scenario import SCENARIO_DIR
 from sim.config.sweep import load_sweep
-from sim.experiments.report import cells, markdown, report, wilson
+from sim.experiments.report import cells, markdown, wilson
+from sim.experiments.report_files import write_report
 from sim.experiments.results import Results
 from sim.experiments.runner import run_on_pool, run_sweep, trial_specs
 from sim.experiments.trial import CRASH_TRIAL_ENV, run_trial
@@ -397,7 +398,7 @@ def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
                     n[1] += bool(ok)
     table = cells(db)
     assert {(c.method, c.density, c.tolerance): [c.trials, c.successes] for c in table} == count
-    out = report(db, tmp_path / "out")
+    out = write_report(db, tmp_path / "out")
     text = out["markdown"]
     # the table, then each density's blocked share per elevation band, by hand
     bands: dict[float, list[list[float]]] = {}

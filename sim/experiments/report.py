@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sim.experiments.report_chart import write_chart
 from sim.experiments.results import Results, ResultsError
 
 Z95 = 1.959963984540054
@@ -316,30 +315,3 @@ def write_csv(table: list[Cell], path: Path) -> None:
                  round(c.achieved_density, 5), c.tolerance, c.trials, c.successes,
                  round(100 * c.rate, 2), round(100 * c.interval[0], 2),
                  round(100 * c.interval[1], 2), c.paper or ""] for c in table))
-
-
-def report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:
-    """Write ``<db stem>.md``, ``.csv`` and ``.png`` into ``out`` (default: beside the
-    database), and the paper's orderings tested (sim/experiments/orderings.py) as
-    ``<db stem>-orderings.md`` and ``.csv``; returns both Markdown texts and the paths."""
-    from sim.experiments import orderings as claims  # it reads this module's tables
-
-    db = Path(db)
-    table = cells(db)
-    tested = claims.orderings_in(db)
-    folder = Path(out) if out is not None else db.parent
-    folder.mkdir(parents=True, exist_ok=True)
-    text = markdown(table)
-    for extra in (failed_markdown(failed_trials(db)), step_limit_markdown(step_limit(db)),
-                  bands_markdown(elevation_bands(db)), views_markdown(camera_views(db))):
-        if extra:
-            text += "\n" + extra
-    ordered = claims.markdown(tested)
-    paths = {ext: folder / f"{db.stem}.{ext}" for ext in ("md", "csv", "png")}
-    paths |= {f"orderings {ext}": folder / f"{db.stem}-orderings.{ext}" for ext in ("md", "csv")}
-    paths["md"].write_text(text)
-    write_csv(table, paths["csv"])
-    write_chart(table, paths["png"], DIFFICULTY)
-    paths["orderings md"].write_text(ordered)
-    claims.write_csv(tested, paths["orderings csv"])
-    return {"markdown": text, "orderings": ordered, "paths": paths}
