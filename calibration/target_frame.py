@@ -19,10 +19,10 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mapping import Pinhole, opencv_pose, world_to_camera
+from mapping import Pinhole, Target, opencv_pose, world_to_camera
 
 from .ekf import StereoCamera
-from .targets import Target, holes_near
+from .targets import holes_near
 
 # A target is looked for where the believed pose puts it, as far around as that
 # prediction is uncertain: SIGMAS standard deviations of its pixel, plus the detector's

@@ -17,6 +17,7 @@ from .integrate import integrate_depth
 from .obstacle_field import ObstacleField
 from .raycast import first_hits, mark_free_image, traverse
 from .stereo import StereoSettings, stereo_depth
+from .targets import Target, circle_in_plane
 from .views import GAINS, GainModel, View, mean_entropy, region_mask, view_rays
 
 __all__ = [
@@ -34,8 +35,10 @@ __all__ = [
     "Pinhole",
     "SensorModel",
     "StereoSettings",
+    "Target",
     "View",
     "camera_to_world",
+    "circle_in_plane",
     "drive_lengths",
     "first_hits",
     "fit_lying_pose",

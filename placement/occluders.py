@@ -24,9 +24,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
-from mapping import OccupancyGrid, stored_log_odds
+from mapping import OccupancyGrid, circle_in_plane, stored_log_odds
 
-from .rating import TargetModel, circle_in_plane
+from .rating import TargetModel
 
 CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
 

@@ -43,17 +43,6 @@ class TargetModel:
         return (self.radius, self.half_length, *axis)
 
 
-def circle_in_plane(normal: np.ndarray, radius: float, count: int) -> np.ndarray:
-    """``count`` offsets (count, 3) evenly on a circle of ``radius`` about ``normal``."""
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
-    helper = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
-    u = np.cross(n, helper)
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    a = np.linspace(0, 2 * np.pi, count, endpoint=False)
-    return radius * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
-
-
 @dataclass(frozen=True)
 class Weights:
     """Exponents of eq. 1."""

@@ -15,11 +15,11 @@ from typing import Literal
 import numba as nb
 import numpy as np
 
-from mapping import LOG_ODDS_SCALE, OccupancyGrid, stored_log_odds
+from mapping import LOG_ODDS_SCALE, OccupancyGrid, circle_in_plane, stored_log_odds
 
 from .errors import PlacementError
 from .occluders import Hull, expanded_hulls, grid_occluders, target_outline
-from .rating import CameraModel, Ratings, TargetModel, Weights, circle_in_plane, rate_best
+from .rating import CameraModel, Ratings, TargetModel, Weights, rate_best
 from .tfv import clearance_map
 
 Strategy = Literal["exhaustive", "coarse", "bounded", "random"]

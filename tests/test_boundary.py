@@ -93,3 +93,26 @@ def test_no_module_imports_another_modules_private_name():
 def test_the_check_sees_a_private_import():
     assert private_imports("from a.b import c, _d\nimport e._f\nfrom g import __version__") \
         == [(1, "_d"), (2, "_f")]
+
+
+def imported_modules(source: str) -> set[str]:
+    """The top-level-qualified modules a source imports (absolute imports only)."""
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.add(node.module)
+        elif isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+    return out
+
+
+def test_shared_geometry_sits_below_the_rooms_that_use_it():
+    """Targets and their geometry live in mapping (the bottom floor): calibration does
+    not reach sideways into placement for them, nor the simulated world down into
+    calibration."""
+    for folder, forbidden in (("calibration", "placement"), ("sim/world", "calibration")):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            bad = {m for m in imported_modules(path.read_text())
+                   if m == forbidden or m.startswith(forbidden + ".")}
+            assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}"
+    assert "calibration.targets" in imported_modules("from calibration.targets import x")

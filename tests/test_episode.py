@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from calibration.targets import Target
-from mapping import Pinhole, opencv_pose, world_to_camera
+from mapping import Pinhole, Target, opencv_pose, world_to_camera
 from placement import Region, Weights, search
 from sim.config.scenario import SCENARIO_DIR, load_scenario
 from sim.stages.episode import Episode

@@ -16,8 +16,7 @@ from calibration.edge_fit import EdgeFit, point_covariance
 from calibration.edge_model import StereoRig
 from calibration.ekf import StereoCamera
 from calibration.target_frame import Sighting
-from calibration.targets import Target
-from mapping import opencv_pose
+from mapping import Target, opencv_pose
 from sim.config.scenario import load_scenario
 from sim.stages.relative import HOLE_CENTRE_SD_PX, stand_in
 from sim.stages.slot_target import SLOT, is_slot, task_targets

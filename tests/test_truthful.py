@@ -20,8 +20,7 @@ from calibration.target_frame import (
     search_slack_px,
     sight,
 )
-from calibration.targets import Target
-from mapping import Pinhole
+from mapping import Pinhole, Target
 from sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from sim.stages.episode import Episode, place_look_do
 from sim.stages.exploration import explore

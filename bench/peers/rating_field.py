@@ -31,8 +31,7 @@ import mujoco
 import numpy as np
 
 from bench.common import print_table, write_results
-from calibration.targets import Target
-from mapping import OccupancyGrid, SensorModel
+from mapping import OccupancyGrid, SensorModel, Target
 from placement import (
     CameraModel,
     SearchSettings,

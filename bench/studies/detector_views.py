@@ -17,8 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from calibration import disk_template, locate_hole, log_response, match_hole_near, to_gray
 from calibration.target_frame import projected_disk, search_slack_px, sight
-from calibration.targets import Target
-from mapping import Pinhole, opencv_pose, world_to_camera
+from mapping import Pinhole, Target, opencv_pose, world_to_camera
 from sim.config.scenario import Scenario, load_scenario
 from sim.stages.look import find_target
 from sim.world.optics import Lens, defocus

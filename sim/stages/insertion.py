@@ -12,8 +12,7 @@ from typing import Any
 import numpy as np
 
 from calibration.target_frame import Sighting, in_measured_frame
-from calibration.targets import Target
-from mapping import LyingPose, lying_pose
+from mapping import LyingPose, Target, lying_pose
 from sim.stages.corrector import PoseCorrector
 from sim.stages.place import place, ranked_field
 from sim.stages.placement_result import Placement

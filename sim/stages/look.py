@@ -18,8 +18,7 @@ import numpy as np
 
 from calibration import locate_hole
 from calibration.target_frame import Sighting, projected_disk, sight
-from calibration.targets import Target
-from mapping import OccupancyGrid, Pinhole, opencv_pose
+from mapping import OccupancyGrid, Pinhole, Target, opencv_pose
 from placement import line_of_sight
 from sim.config.scenario import Scenario
 from sim.stages.placement_result import Placement

@@ -21,8 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from calibration.targets import Target
-from mapping import region_mask
+from mapping import Target, region_mask
 from placement import (
     RatingField,
     Region,

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from calibration.pose import rotation_deg
-from calibration.targets import Target
+from mapping import Target
 from sim.stages.correction import Correction
 from sim.stages.task_result import Camera
 from sim.world.ik import IKResult

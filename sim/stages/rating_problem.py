@@ -12,8 +12,7 @@ import math
 
 import numpy as np
 
-from calibration.targets import Target
-from mapping import OccupancyGrid
+from mapping import OccupancyGrid, Target
 from placement import (
     CameraModel,
     Hull,

@@ -35,8 +35,7 @@ from calibration.edge_fit import fit_edges
 from calibration.edge_model import Boxes, Seen, StereoRig
 from calibration.ekf import StereoCamera
 from calibration.target_frame import Sighting, frame_motion
-from calibration.targets import Target
-from mapping import opencv_pose
+from mapping import Target, opencv_pose
 from sim.stages.task_result import Camera
 
 # The holes' frame puts the slot within about this (m, rad per axis): in 15 views at 0.8 m

@@ -20,8 +20,7 @@ from scipy.spatial.transform import Rotation
 from calibration.edge_fit import fit_edges
 from calibration.edge_model import Boxes, Seen, StereoRig
 from calibration.target_frame import Sighting
-from calibration.targets import Target
-from mapping import opencv_pose
+from mapping import Target, opencv_pose
 from sim.stages.relative import (
     SlotBelief,
     slot_half_width,

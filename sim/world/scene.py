@@ -9,7 +9,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calibration.targets import Target
+from mapping import Target
 from sim.config.scenario import Scenario
 from sim.config.schema import ScenarioError
 from sim.world.robot_model import camera_robot
