@@ -14,8 +14,6 @@ import pytest
 
 from sim.config.scenario import load_scenario, parse_scenario
 from sim.config.schema import ScenarioError
-from sim.experiments.random_obstacles import TABLE_HALF
-from sim.experiments.random_scenario import to_toml
 from sim.experiments.reach_scenes import (
     COMPACT_ARM,
     FAR_LIMIT_M,
@@ -27,6 +25,8 @@ from sim.experiments.reach_scenes import (
     obstacle_solid,
     oracle_table,
 )
+from sim.experiments.soak.draw_obstacles import TABLE_HALF
+from sim.experiments.soak.draw_scenario import to_toml
 from sim.world.robot_model import ARM_JOINTS
 from sim.world.scene import build_scene
 

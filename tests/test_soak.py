@@ -18,11 +18,11 @@ import pytest
 
 from sim.config.scenario import parse_scenario
 from sim.config.schema import ScenarioError
-from sim.experiments.audit import audit_run
-from sim.experiments.audit_findings import Audit
-from sim.experiments.audit_robot import CORRECTION_TOL_M, POSE_TOL_DEG, POSE_TOL_M
-from sim.experiments.random_scenario import draw_scenario, is_heavy, to_toml
-from sim.experiments.soak import Job, discard_reason, run_file, run_scenes, tally
+from sim.experiments.soak.audit import audit_run
+from sim.experiments.soak.audit_findings import Audit
+from sim.experiments.soak.audit_robot import CORRECTION_TOL_M, POSE_TOL_DEG, POSE_TOL_M
+from sim.experiments.soak.draw_scenario import draw_scenario, is_heavy, to_toml
+from sim.experiments.soak.scenes import Job, discard_reason, run_file, run_scenes, tally
 from sim.world.scene import build_scene
 
 # Scenes 0-23 of the soak's draws at 240 x 180 (the smallest size at which most random

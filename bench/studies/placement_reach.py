@@ -52,10 +52,10 @@ import numpy as np
 from bench.common import append, done_records, print_table, write_results
 from sim.config.scenario import load_scenario
 from sim.config.schema import ScenarioError
-from sim.experiments.random_scenario import to_toml
 from sim.experiments.reach_scenes import ORACLE, draw_reach_scene, oracle_table
 from sim.experiments.runner import worker_pool
-from sim.experiments.soak import MAX_DRAWS, discard_reason
+from sim.experiments.soak.draw_scenario import to_toml
+from sim.experiments.soak.scenes import MAX_DRAWS, discard_reason
 from sim.stages.episode import Episode
 
 RUNS = ("default", "oracle")

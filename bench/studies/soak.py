@@ -1,6 +1,6 @@
 """A soak of unfamiliar scenes: random valid scenarios, each run as ``taskcam run FILE
---out DIR`` runs it and its run directory audited (sim/experiments/soak.py,
-sim/experiments/audit.py).
+--out DIR`` runs it and its run directory audited (sim/experiments/soak/scenes.py,
+sim/experiments/soak/audit.py).
 
 Run from the repository root: ``python -m bench.studies.soak`` (500 scenes, every tenth with the
 pose correction and the task on, on 2 worker processes). Each finished scene is
@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from bench.common import ROOT, append, done_records, write_results
-from sim.experiments.random_scenario import is_heavy
-from sim.experiments.soak import Job, run_scenes, tally
+from sim.experiments.soak.draw_scenario import is_heavy
+from sim.experiments.soak.scenes import Job, run_scenes, tally
 
 DOCS = ROOT / "docs" / "soak.md"
 BEGIN, END = "<!-- soak table: written by bench/studies/soak.py -->", "<!-- end of soak table -->"

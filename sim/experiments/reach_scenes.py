@@ -1,5 +1,5 @@
 """Scenes for the benchmark of placement generality (bench/studies/placement_reach.py): the
-soak's random scenarios (sim/experiments/random_scenario.py) made harder to reach, with
+soak's random scenarios (sim/experiments/soak/draw_scenario.py) made harder to reach, with
 every placement setting left at the project's defaults.
 
 A draw is a scenario table a user could write. Over the soak's draw it adds:
@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.experiments.random_obstacles import (
+from sim.experiments.soak.draw_obstacles import (
     PANEL_RADIUS,
     TABLE_HALF,
     Frame,
@@ -44,7 +44,7 @@ from sim.experiments.random_obstacles import (
     over_table,
     rounded,
 )
-from sim.experiments.random_scenario import (
+from sim.experiments.soak.draw_scenario import (
     ROBOT_RADIUS,
     base_clear,
     draw_scenario,

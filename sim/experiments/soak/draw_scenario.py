@@ -1,5 +1,5 @@
 """Random scenarios over the scenario schema (sim/config/scenario.py), for the soak of
-unfamiliar scenes (sim/experiments/soak.py, bench/studies/soak.py, tests/test_soak.py).
+unfamiliar scenes (sim/experiments/soak/scenes.py, bench/studies/soak.py, tests/test_soak.py).
 
 A draw is a TOML table a user could have written: 1 to 4 robots with bases near and
 far at any yaw, the work-piece anywhere near the origin at any yaw (sometimes with
@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.experiments.random_obstacles import (
+from sim.experiments.soak.draw_obstacles import (
     PANEL_RADIUS,
     TABLE_HALF,
     Frame,

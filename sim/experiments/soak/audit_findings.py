@@ -1,4 +1,4 @@
-"""What an audit of a run directory found (sim/experiments/audit.py): each way the
+"""What an audit of a run directory found (sim/experiments/soak/audit.py): each way the
 run does not tell the truth, a :class:`Finding` of one of KINDS, and the counts of what
 was checked."""
 

@@ -1,6 +1,6 @@
-"""The soak's scenes: draw a random valid scenario (sim/experiments/random_scenario.py),
+"""The soak's scenes: draw a random valid scenario (sim/experiments/soak/draw_scenario.py),
 write it as a TOML file, run it as a user would (as ``taskcam run FILE --out DIR`` runs
-it, in a worker process) and audit the run directory (sim/experiments/audit.py).
+it, in a worker process) and audit the run directory (sim/experiments/soak/audit.py).
 
 A draw the command rejects as invalid input (exit 2: the scenario parser or the scene
 builder) is discarded, its reason (the key named) counted, and the next draw of the
@@ -29,10 +29,10 @@ import numpy as np
 
 from sim.config.scenario import load_scenario
 from sim.config.schema import ScenarioError
-from sim.experiments.audit import audit_run
-from sim.experiments.audit_findings import Finding
-from sim.experiments.random_scenario import SIZES, draw_scenario, is_heavy, to_toml
 from sim.experiments.runner import init_worker, one_thread_each
+from sim.experiments.soak.audit import audit_run
+from sim.experiments.soak.audit_findings import Finding
+from sim.experiments.soak.draw_scenario import SIZES, draw_scenario, is_heavy, to_toml
 from sim.stages.episode import Episode
 from sim.stages.run_directory import write_run
 

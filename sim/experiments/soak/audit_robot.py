@@ -1,7 +1,7 @@
 """The checks of one robot of a run's summary against its saved scenes: accounted
 for, its pose where the scene has its camera, its corrections within tolerance or
 reported as not trusted, its sightings where the true target projects and in sight
-(the list of checks: sim/experiments/audit.py)."""
+(the list of checks: sim/experiments/soak/audit.py)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from sim.experiments.audit_findings import Audit, reason_key
-from sim.experiments.audit_scene import SavedScene, inside_image, pose_gap, pose_matrix, project
+from sim.experiments.soak.audit_findings import Audit, reason_key
+from sim.experiments.soak.audit_scene import (
+    SavedScene,
+    inside_image,
+    pose_gap,
+    pose_matrix,
+    project,
+)
 
 # MuJoCo writes MJCF numbers with 6 significant digits, so a camera pose read back from
 # scene.xml's keyframes is off the one the run computed by the rounding of every joint

@@ -1,7 +1,7 @@
 """Drawing a random scenario's obstacles around the work-piece: a roof on posts or a
 shelf over the target, walls beside the table, a sphere hanging over the target, and
 clutter further out; each kept clear of the table and the panel, with its footprint
-(:class:`Solid`) for the robots' bases to keep clear of (sim/experiments/random_scenario.py).
+(:class:`Solid`) for the robots' bases to keep clear of (sim/experiments/soak/draw_scenario.py).
 Nothing here imports mujoco.
 """
 

@@ -25,11 +25,11 @@ Checks, each a kind of :class:`Finding`:
   reported error agrees with its estimated pose against the true one;
 - ``schema``: the summary lacks what the checks need (named); ``traceback``, ``crash``
   and ``timeout``: the run raised, killed its process or overran (found by the
-  runner, sim/experiments/soak.py, not here).
+  runner, sim/experiments/soak/scenes.py, not here).
 
 The checks are pure: they read the three files and nothing else (mujoco only to load
 the scenes, put them at a keyframe and cast rays). One robot's checks and their
-tolerances are in sim/experiments/audit_robot.py, the saved scenes' geometry in
+tolerances are in sim/experiments/soak/audit_robot.py, the saved scenes' geometry in
 audit_scene.py, the findings in audit_findings.py.
 """
 
@@ -39,9 +39,9 @@ import json
 from pathlib import Path
 
 from sim.config.scenario import Scenario
-from sim.experiments.audit_findings import Audit
-from sim.experiments.audit_robot import RobotAudit
-from sim.experiments.audit_scene import SavedScene
+from sim.experiments.soak.audit_findings import Audit
+from sim.experiments.soak.audit_robot import RobotAudit
+from sim.experiments.soak.audit_scene import SavedScene
 
 
 def audit_run(run_dir: str | Path, scenario: Scenario | None = None) -> Audit:
