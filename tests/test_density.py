@@ -20,7 +20,7 @@ from placement.density import (
 )
 from sim.config.scenario import load_scenario
 from sim.experiments.generate import (
-    KeepOut,
+    ClutterKeepOut,
     extent_z,
     footprint,
     generate,
@@ -151,7 +151,8 @@ def test_an_impossible_request_is_refused():
     with pytest.raises(ValueError, match="not in"):
         generate(0.95, np.zeros(3), UP, 1.5, [], np.random.default_rng(0))
     with pytest.raises(ValueError, match="could not reach"):  # no room for any obstacle
-        generate(0.2, np.zeros(3), UP, 1.5, [KeepOut(0.0, 0.0, 3.0)], np.random.default_rng(0))
+        generate(0.2, np.zeros(3), UP, 1.5, [ClutterKeepOut(0.0, 0.0, 3.0)],
+                 np.random.default_rng(0))
 
 
 def test_a_scene_that_reaches_the_upper_bound_is_kept():

@@ -10,7 +10,7 @@ from placement.rating import Ratings
 from placement.search import RatingField
 from sim.config.scenario import ScenarioError, load_scenario, parse_scenario
 from sim.stages.place import travel_weighed
-from sim.world.collision import KeepOut, Proximity
+from sim.world.collision import KeepOutBoxes, Proximity
 from sim.world.motion import dense_path
 from sim.world.planning import ArmPlanner
 from sim.world.scene import build_scene
@@ -149,7 +149,7 @@ def test_travel_weighing_prefers_what_the_base_drives_less_to():
 
 def test_the_keep_out_distance_is_the_distance_to_the_nearest_box():
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 deg about z
-    boxes = KeepOut(np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]), np.stack([np.eye(3), turn]),
+    boxes = KeepOutBoxes(np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]), np.stack([np.eye(3), turn]),
                     np.array([[1.0, 0.5, 0.5], [1.0, 0.5, 0.5]]))
     points = np.array([[0.5, 0.2, 0.0],   # inside the first
                        [2.0, 0.0, 0.0],   # 1 m beyond the first's end along x
@@ -165,7 +165,7 @@ def test_a_robot_keeps_out_of_the_insertion_corridor():
     plan = free.plan(robot, scene.primary.position, GOAL)
     assert plan.reason is None
     # a keep-out box around where the free plan put the camera refuses the candidate
-    box = KeepOut(GOAL[None], np.eye(3)[None], np.full((1, 3), 0.1))
+    box = KeepOutBoxes(GOAL[None], np.eye(3)[None], np.full((1, 3), 0.1))
     kept = ArmPlanner(scene, scene.make_data(), CLEARANCE_M, CLEARANCE_M + 0.02, drive_m=4.0,
                       rng=np.random.default_rng(3), keep_out=box)
     assert kept.plan(robot, scene.primary.position, GOAL).reason is not None

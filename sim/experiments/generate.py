@@ -42,7 +42,7 @@ PANEL_WAY_MARGIN_M = 0.15  # the panel's way is kept clear this far above its ca
 
 
 @dataclass(frozen=True)
-class KeepOut:
+class ClutterKeepOut:
     """A vertical cylinder obstacles must not enter: centre (x, y) and radius (m), from
     the floor up to ``top`` (m; infinite: every height)."""
 
@@ -52,7 +52,7 @@ class KeepOut:
     top: float = math.inf
 
 
-def keep_outs(s: Scenario, way_top_m: float) -> list[KeepOut]:
+def keep_outs(s: Scenario, way_top_m: float) -> list[ClutterKeepOut]:
     """Where a scenario's obstacles must not stand: the work-piece (0.55 m about its
     centre) and the panel where it lies (0.25 m), and the carry between them every 0.2 m,
     up to ``way_top_m`` (the panel's way: above it, shelves may hang); each robot's base
@@ -60,9 +60,9 @@ def keep_outs(s: Scenario, way_top_m: float) -> list[KeepOut]:
     work, panel = np.asarray(s.workpiece.position, float), np.asarray(s.panel.position[:2])
     steps = max(2, int(np.linalg.norm(work - panel) / 0.2) + 1)
     way = [panel + t * (work - panel) for t in np.linspace(0.0, 1.0, steps)]
-    return [KeepOut(float(work[0]), float(work[1]), 0.55, way_top_m),
-            *[KeepOut(float(x), float(y), 0.25, way_top_m) for x, y in way],
-            *[KeepOut(b.x, b.y, 0.7) for b in s.base_poses()]]
+    return [ClutterKeepOut(float(work[0]), float(work[1]), 0.55, way_top_m),
+            *[ClutterKeepOut(float(x), float(y), 0.25, way_top_m) for x, y in way],
+            *[ClutterKeepOut(b.x, b.y, 0.7) for b in s.base_poses()]]
 
 
 def primitive(o: ObstacleConfig) -> Primitive:
@@ -118,7 +118,7 @@ def _inside(o: ObstacleConfig, low: np.ndarray, high: np.ndarray) -> bool:
                 and low[2] - 1e-9 <= bottom and top <= high[2])
 
 
-def _clear(o: ObstacleConfig, keep_out: list[KeepOut]) -> bool:
+def _clear(o: ObstacleConfig, keep_out: list[ClutterKeepOut]) -> bool:
     bottom, _ = extent_z(o)
     return all(math.hypot(o.position[0] - k.x, o.position[1] - k.y) >= footprint(o) + k.radius
                or bottom >= k.top for k in keep_out)
@@ -135,7 +135,7 @@ class Clutter:
 
 
 def generate(request: float, target: np.ndarray, normal: np.ndarray, radius: float,
-             keep_out: list[KeepOut], rng: np.random.Generator,
+             keep_out: list[ClutterKeepOut], rng: np.random.Generator,
              grid: tuple[np.ndarray, np.ndarray] | None = None, floor_z: float = 0.0
              ) -> Clutter:
     """Obstacles occluding ``request`` (a fraction) of the target's hemisphere within

@@ -16,14 +16,14 @@ import mujoco
 import numpy as np
 
 from sim.config.scenario import TaskConfig
-from sim.world.collision import KeepOut
+from sim.world.collision import KeepOutBoxes
 
 CARRY_SAMPLES = 11  # boxes along the carry (as many as the task's open-loop carry steps)
 DESCENT_SAMPLES = 4  # ... and along the descent into the slot
 CARRY_SIGMAS = 3.0  # the boxes are grown by this many of the carry's standard deviations
 
 
-def carry_corridor(model: mujoco.MjModel, data: mujoco.MjData, cfg: TaskConfig) -> KeepOut:
+def carry_corridor(model: mujoco.MjModel, data: mujoco.MjData, cfg: TaskConfig) -> KeepOutBoxes:
     """The corridor of the panel's carry to its slot in ``model`` at ``data`` (the
     nominal model and the belief)."""
     body = model.body("panel/panel")
@@ -42,11 +42,11 @@ def carry_corridor(model: mujoco.MjModel, data: mujoco.MjData, cfg: TaskConfig) 
     centres = bottoms + geom.pos @ R.T
     grow = CARRY_SIGMAS * cfg.carry_error_m
     n = len(centres)
-    return KeepOut(centres, np.repeat(R[None], n, axis=0),
+    return KeepOutBoxes(centres, np.repeat(R[None], n, axis=0),
                    np.repeat((geom.size + grow)[None], n, axis=0))
 
 
-def site_corners(corridor: KeepOut) -> np.ndarray:
+def site_corners(corridor: KeepOutBoxes) -> np.ndarray:
     """The corners (m, world) of the corridor's end, the panel's boxes from above its
     slot down into it: what a camera measuring the insertion must hold in frame and
     in focus."""

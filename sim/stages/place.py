@@ -39,7 +39,7 @@ from sim.stages.rating_problem import RatingProblem, target_model
 from sim.stages.scout import Scouting
 from sim.stages.world import World
 from sim.world.base_scanner import scan_into
-from sim.world.collision import KeepOut, blocked_rays, robot_points
+from sim.world.collision import KeepOutBoxes, blocked_rays, robot_points
 from sim.world.planning import ArmPlanner
 from sim.world.render import camera_pose
 from sim.world.scene import Robot
@@ -240,7 +240,7 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
                      rejections=dict(rejections), unreachable=unreachable, **counts)
 
 
-def _planner(world: World, corridor: KeepOut | None, kind: str) -> ArmPlanner:
+def _planner(world: World, corridor: KeepOutBoxes | None, kind: str) -> ArmPlanner:
     """A planner for the world's robots in the planner's world ``kind``
     (``search.planner_world``), as the maps now are."""
     s = world.scenario

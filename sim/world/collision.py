@@ -13,7 +13,7 @@ from sim.world.scene import Robot
 
 
 @dataclass(frozen=True)
-class KeepOut:
+class KeepOutBoxes:
     """Oriented boxes (world, m) robots keep out of: centres (n, 3), rotations (n, 3, 3:
     box to world), half extents (n, 3)."""
 

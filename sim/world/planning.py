@@ -33,7 +33,7 @@ import numpy as np
 from mapping import FloorMap, OccupancyGrid
 from sim.world.arm import Arm, scene_arm
 from sim.world.base_scanner import SCAN_HEIGHT_M
-from sim.world.collision import KeepOut, Proximity
+from sim.world.collision import KeepOutBoxes, Proximity
 from sim.world.ik import IKResult, IKSettings, solve_camera_pose
 from sim.world.mapped_obstacles import MapFields, left_to_map, map_fields, robot_spheres
 from sim.world.motion import dense_path
@@ -111,7 +111,7 @@ class ArmPlanner:
                  ik_margin_m: float, move_base: bool = True, *, drive_m: float = DRIVE_M,
                  room: tuple[np.ndarray, np.ndarray] | None = None, arm: Arm | None = None,
                  checks: int = 20000, rng: np.random.Generator | None = None,
-                 keep_out: KeepOut | None = None, grid: OccupancyGrid | None = None,
+                 keep_out: KeepOutBoxes | None = None, grid: OccupancyGrid | None = None,
                  floor: FloorMap | None = None, unobserved_blocks: bool = True,
                  places: dict[tuple[Any, ...], Places] | None = None,
                  settings: IKSettings = IKSettings()) -> None:
