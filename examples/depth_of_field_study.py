@@ -29,7 +29,7 @@ from sim.world.gl import resolve_gl_backend  # noqa: E402
 resolve_gl_backend()  # MUJOCO_GL, before mujoco loads
 
 from sim.config.scenario import Scenario, parse_scenario  # noqa: E402
-from sim.outcome import distance_m  # noqa: E402
+from sim.run_screen import distance_m  # noqa: E402
 from sim.stages.episode import Episode  # noqa: E402
 
 

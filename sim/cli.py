@@ -13,8 +13,8 @@ from sim.config.scenario import load_scenario
 from sim.config.schema import ScenarioError
 from sim.determinism import is_command, pin
 from sim.experiments.results import ResultsError
-from sim.outcome import outcome
 from sim.output_paths import check_directory, check_file
+from sim.run_screen import run_screen
 from sim.screen import Screen
 from sim.world.gl import resolve_gl_backend
 
@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     screen.line(f"wrote {out}/summary.json, scene.xml, look.xml, overview.png"
                 f"{'' if args.no_record else ', run.rrd'}{', episode.mp4' if args.video else ''}"
                 f" in {time.perf_counter() - start:.1f} s")
-    print(outcome(summary, None if args.no_record else out / "run.rrd"), end="")
+    print(run_screen(summary, None if args.no_record else out / "run.rrd"), end="")
     return EXIT_OK
 
 

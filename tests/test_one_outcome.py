@@ -25,13 +25,13 @@ import numpy as np
 import pytest
 
 from sim.config.scenario import load_scenario
-from sim.outcome import (
+from sim.run_screen import (
     correction_words,
     has_display,
-    outcome,
     placed_line,
     placement_line,
     replacement_lines,
+    run_screen,
     view_command,
 )
 from sim.screen import Screen
@@ -95,7 +95,7 @@ def test_each_correction_is_told_with_its_status_and_why():
     assert lines[1].endswith(f"; uncertain 34.1 mm 0.87° -> 7.9 mm 0.37° ({UNCERTAIN})")
     assert lines[2].endswith("; corrected 34.1 mm 0.87° -> 7.9 mm 0.37°")
     assert lines[3] == "r4: not placed (no view found)"
-    table = outcome(SUMMARY).splitlines()
+    table = run_screen(SUMMARY).splitlines()
     rows = {line.split()[0]: line for line in table[1:5]}
     for name, status in (("r1", "failed"), ("r2", "uncertain"), ("r3", "corrected")):
         assert f" {status} " in rows[name]
@@ -107,7 +107,7 @@ def test_each_correction_is_told_with_its_status_and_why():
 
 
 def test_placed_and_replaced_robots_are_counted_and_told_alike():
-    table = outcome(SUMMARY).splitlines()
+    table = run_screen(SUMMARY).splitlines()
     assert placed_line(SUMMARY["robots"]) == "placed: 3 of 4 robots (r1, r2, r3); not placed: r4"
     assert placed_line(SUMMARY["robots"]) in table
     again = replacement_lines(SUMMARY)
@@ -226,7 +226,7 @@ def test_a_run_tells_one_outcome(tmp_path, scenario, not_placed, of):
                                  "not_placed": [r["name"] for r in robots if not r["placed"]]}
     assert summary["placed"]["not_placed"] == not_placed
     # the screen: the table is the summary's, the stage lines say the same
-    assert done.stdout == outcome(summary, out / "run.rrd")
+    assert done.stdout == run_screen(summary, out / "run.rrd")
     stages = done.stderr
     assert f"taskcam: {placed_line(robots)}\n" in stages and placed_line(robots) in done.stdout
     assert f"placed: {of - len(not_placed)} of {of} robots" in stages
@@ -274,7 +274,7 @@ def test_quiet_prints_the_table_alone_and_a_terminal_sees_the_meters(tmp_path):
                            timeout=900)
     assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
     summary = json.loads((tmp_path / "q" / "summary.json").read_text())
-    assert quiet.stdout == outcome(summary)
+    assert quiet.stdout == run_screen(summary)
     # on a terminal (a pseudo-terminal for stderr): the move's meter counts frames
     leader, follower = pty.openpty()  # a terminal 100 columns wide
     fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))

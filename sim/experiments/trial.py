@@ -71,7 +71,7 @@ def task_rng(seed: int) -> np.random.Generator:
     return np.random.default_rng([seed, 2])
 
 
-def _outcome(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str, Any],
+def _method_record(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str, Any],
              task: dict[str, Any] | None, seconds: float) -> dict[str, Any]:
     task = task or {}
     return {
@@ -141,7 +141,7 @@ def _run_trial(spec: TrialSpec) -> dict[str, Any]:
             began = time.perf_counter()
             run = world.restored(mapped, method_rng(spec.seed, method), task_rng(spec.seed))
             outcome = place_look_do(run, renderer, problem, method.placement, method.secondary)
-            outcomes.append(_outcome(method, outcome.robots(run), outcome.frame, outcome.task,
+            outcomes.append(_method_record(method, outcome.robots(run), outcome.frame, outcome.task,
                                      time.perf_counter() - began))
         render_s = renderer.seconds
     timings = timer.rounded(3)

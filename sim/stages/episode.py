@@ -27,7 +27,7 @@ import numpy as np
 from calibration.target_frame import common_frame
 from mapping import Pinhole
 from sim.config.scenario import Scenario
-from sim.outcome import (
+from sim.run_screen import (
     look_line,
     mapping_line,
     placed_line,

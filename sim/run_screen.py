@@ -176,7 +176,7 @@ def view_command(recording: Path, display: bool | None = None) -> str:
             f"  # no display here: open http://localhost:{WEB_VIEWER_PORT} in a browser")
 
 
-def outcome(summary: dict[str, Any], recording: Path | None = None) -> str:
+def run_screen(summary: dict[str, Any], recording: Path | None = None) -> str:
     """The outcome table of a run's ``summary``; with its ``recording``, how to open it."""
     # the pose the robot believes its camera has, off the truth: as commanded (before
     # correction), and as corrected

@@ -16,7 +16,7 @@ import pytest
 
 from mapping import opencv_pose
 from sim.config.scenario import load_scenario
-from sim.outcome import distance_m, outcome, placement_line, task_line, view_command
+from sim.run_screen import distance_m, placement_line, run_screen, task_line, view_command
 from sim.stages.episode import Episode
 from sim.stages.overview import Overview, framed_points, frustum_segments
 from sim.stages.run_directory import write_run
@@ -47,7 +47,7 @@ SUMMARY = {
 
 
 def test_the_outcome_table_says_what_the_summary_says():
-    text = outcome(SUMMARY, Path("runs/x/run.rrd"))
+    text = run_screen(SUMMARY, Path("runs/x/run.rrd"))
     assert distance_m(SUMMARY["robots"][0]) == pytest.approx(0.5)  # 0.3-0.4-0.5 by hand
     lines = text.splitlines()
     robots = lines[:3]
@@ -135,7 +135,7 @@ def test_a_filmed_run_writes_its_pictures(tmp_path):
 def test_taskcam_run_prints_its_stages_and_outcome(default_run):
     out, summary = default_run
     printed = (out.parent / "stdout.txt").read_text()
-    assert printed == outcome(summary, out / "run.rrd")  # the table, from the summary
+    assert printed == run_screen(summary, out / "run.rrd")  # the table, from the summary
     command = shlex.split(printed.splitlines()[-1].removeprefix("view: "), comments=True)
     assert Path(command[-1]) == out / "run.rrd" and Path(command[0]).name == "rerun"
     stages = (out.parent / "stderr.txt").read_text()
