@@ -21,7 +21,8 @@ its slot, and success is judged from where it really ends (docs/task.md).
    ``step_noise_m``.
 5. **Re-place.** Each camera is rated on the insertion site every step (the panel one
    more occluder); one whose rating stays well below what it had, or that loses the
-   panel ``lost_limit`` steps running, is placed again (the episode does it).
+   panel ``lost_limit`` steps running (or twice while the panel stood still: looking
+   again would see the same), is placed again (the episode does it).
 
 It stops when the fused displacement is confidently within the tightest tolerance
 (``stop_share``, ``stop_sigmas``), after ``max_steps``, or when no camera can see the
@@ -86,6 +87,11 @@ REFERENCE_FX_PX = 415.7
 MAX_POINTS_PER_CAMERA = 3000
 STEP_S = 1.0  # simulated time per steering step, for the recording
 OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)
+# A camera's misses while the panel stands still (no step measured it in between): the
+# first fit starts from the prediction, the second from the absolute measurement; a third
+# would see the same images from the same start, so the camera is re-placed after two.
+# (``lost_limit`` rides out a panel passing behind something: that needs the panel to move.)
+STILL_MISSES = 2
 
 
 def execution_sd(cfg: TaskConfig, length_m: float) -> float:
@@ -290,6 +296,7 @@ class InsertionTask(TaskImages):
         rows = self._camera_rows(cameras)
         cameras = list(cameras)  # a re-placed camera takes its predecessor's place
         lost = {c.robot.name: 0 for c in cameras}  # steps running without the panel
+        still = dict(lost)  # of those, since the panel last moved
         steps = measurements = lost_views = freed = occupied = 0
         failed: list[dict[str, Any]] = []
         log: list[dict[str, Any]] = []
@@ -355,9 +362,10 @@ class InsertionTask(TaskImages):
             for cam in cameras:
                 missed = cam.robot.name in why
                 lost[cam.robot.name] = lost[cam.robot.name] + 1 if missed else 0
+                still[cam.robot.name] = 0 if pose is not None else lost[cam.robot.name]
                 lost_views += missed
-            seeing = self._recover(cameras, lost, step, replacements, replace, measurer,
-                                   belief.pose, watch)
+            seeing = self._recover(cameras, lost, still, step, replacements, replace,
+                                   measurer, belief.pose, watch)
             if pose is None:
                 failed.append({"step": step, "why": why})
                 if not seeing:
@@ -437,25 +445,29 @@ class InsertionTask(TaskImages):
                 measurer.forget(name)
                 watch.start(name, again.camera.believed[:3, 3], panel)
 
-    def _recover(self, cameras: list[Camera], lost: dict[str, int], step: int,
-                 replacements: list[dict[str, Any]], replace: Replace | None,
+    def _recover(self, cameras: list[Camera], lost: dict[str, int], still: dict[str, int],
+                 step: int, replacements: list[dict[str, Any]], replace: Replace | None,
                  measurer: RelativeMeasurer, panel: np.ndarray,
                  watch: SiteWatch | None) -> bool:
-        """Re-place the cameras that lost the panel ``lost_limit`` steps running (once
-        each); whether any camera may still see it."""
+        """Re-place the cameras that lost the panel ``lost_limit`` steps running, or
+        STILL_MISSES times while it stood still (``still``), once each; whether any camera
+        may still see it."""
         limit = self.cfg.lost_limit
         for i, cam in enumerate(cameras):
             name = cam.robot.name
-            if lost[name] >= limit and replace is not None \
+            stuck = still[name] >= min(STILL_MISSES, limit)
+            if (lost[name] >= limit or stuck) and replace is not None \
                     and not any(r["robot"] == name for r in replacements):
-                again = replace(cam, step, f"lost the panel {lost[name]} steps running", None,
-                                panel)
+                why = (f"lost the panel {lost[name]} steps running"
+                       + (" while it stood still" if lost[name] < limit else ""))
+                again = replace(cam, step, why, None, panel)
                 if again is not None:
                     replacements.append(again.record)
-                    lost[name] = 0
+                    lost[name] = still[name] = 0
                     if again.camera is not None:
                         cameras[i] = again.camera
                         measurer.forget(name)
                         if watch is not None:
                             watch.start(name, again.camera.believed[:3, 3], panel)
-        return any(lost[c.robot.name] < limit for c in cameras)
+        return any(lost[c.robot.name] < limit and still[c.robot.name] < STILL_MISSES
+                   for c in cameras)
