@@ -76,6 +76,12 @@ def band_shares(blocked: np.ndarray, band: np.ndarray) -> np.ndarray:
 def ray_hits(origin: np.ndarray, directions: np.ndarray, p: Primitive, reach: float
              ) -> np.ndarray:
     """Whether each ray from ``origin`` meets the primitive within ``reach`` (m)."""
+    return ray_entry(origin, directions, p) <= reach
+
+
+def ray_entry(origin: np.ndarray, directions: np.ndarray, p: Primitive) -> np.ndarray:
+    """How far (m) each ray from ``origin`` goes before it meets the primitive (0 from
+    inside it; inf: never)."""
     o = origin - p.centre
     d = directions
     if p.shape == "sphere":
@@ -84,7 +90,7 @@ def ray_hits(origin: np.ndarray, directions: np.ndarray, p: Primitive, reach: fl
         disc = b ** 2 - (o @ o - r * r)
         far = -b + np.sqrt(np.maximum(disc, 0.0))
         near = -b - np.sqrt(np.maximum(disc, 0.0))
-        return (disc >= 0) & (far >= 0) & (np.maximum(near, 0.0) <= reach)
+        return np.where((disc >= 0) & (far >= 0), np.maximum(near, 0.0), np.inf)
     if p.shape == "box":
         c, s = math.cos(p.yaw), math.sin(p.yaw)
         R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -95,7 +101,7 @@ def ray_hits(origin: np.ndarray, directions: np.ndarray, p: Primitive, reach: fl
         lo = np.nanmax(np.where(np.isnan(t1), -np.inf, np.minimum(t1, t2)), axis=1)
         hi = np.nanmin(np.where(np.isnan(t2), np.inf, np.maximum(t1, t2)), axis=1)
         inside_slab = np.all((np.abs(d) > 1e-12) | (np.abs(o) <= half), axis=1)
-        return inside_slab & (hi >= np.maximum(lo, 0.0)) & (np.maximum(lo, 0.0) <= reach)
+        return np.where(inside_slab & (hi >= np.maximum(lo, 0.0)), np.maximum(lo, 0.0), np.inf)
     # an upright cylinder: the infinite cylinder's interval, cut by the two caps
     radius, half_h = p.size[0], p.size[1]
     a = d[:, 0] ** 2 + d[:, 1] ** 2
@@ -114,7 +120,16 @@ def ray_hits(origin: np.ndarray, directions: np.ndarray, p: Primitive, reach: fl
     zhi = np.where(level, np.inf if between else -np.inf, np.maximum(tz1, tz2))
     start, end = np.maximum(lo, zlo), np.minimum(hi, zhi)
     ok = (flat | (disc >= 0)) & (end >= np.maximum(start, 0.0))
-    return ok & (np.maximum(start, 0.0) <= reach)
+    return np.where(ok, np.maximum(start, 0.0), np.inf)
+
+
+def first_hits(origin: np.ndarray, directions: np.ndarray, obstacles: list[Primitive]
+               ) -> np.ndarray:
+    """How far (m) each ray from ``origin`` goes before its first obstacle (inf: none)."""
+    first = np.full(len(directions), np.inf)
+    for p in obstacles:
+        first = np.minimum(first, ray_entry(np.asarray(origin, float), directions, p))
+    return first
 
 
 def occlusion_density(target: np.ndarray, normal: np.ndarray, obstacles: list[Primitive],
@@ -123,7 +138,4 @@ def occlusion_density(target: np.ndarray, normal: np.ndarray, obstacles: list[Pr
     """The fraction of the hemisphere's directions from the target that an obstacle
     blocks within ``radius`` (m)."""
     directions = hemisphere(normal, count, min_elevation_rad)
-    blocked = np.zeros(count, bool)
-    for p in obstacles:
-        blocked |= ray_hits(np.asarray(target, float), directions, p, radius)
-    return float(blocked.mean())
+    return float((first_hits(target, directions, obstacles) <= radius).mean())

@@ -106,7 +106,7 @@ class Sweep(Checked):
 # Which scenes a sweep's seeds make (sim/experiments/generate.py): a new name whenever
 # the generator makes other scenes from the same seeds, so that a database of the old
 # ones is not resumed with new ones
-SCENE_GENERATOR = "every elevation band blocked in proportion (issue 21)"
+SCENE_GENERATOR = "clutter about the slot, its density held from the near to the far limit"
 
 # Scenario keys a sweep sets for each trial itself, and why
 GENERATED = {"obstacles": "each trial generates its own at the sweep's densities",

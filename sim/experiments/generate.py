@@ -1,21 +1,27 @@
-"""Random scenes at a requested occlusion density (Table 1's 5 %, 20 %, 35 %), blocking
-every elevation in proportion.
+"""Random scenes at a requested occlusion density (Table 1's 5 %, 20 %, 35 %), as the
+cameras face it.
 
-The density is the share of the hemisphere's directions above the primary target (from
-10 deg elevation, within the depth of field's far limit) that obstacles block
-(placement/density.py). Floor-standing clutter alone blocks the low elevations and
-leaves the sector above open, where every camera then stands; the paper's clutter
-blocks views "from all directions". So each obstacle is drawn for a 10 deg elevation band,
-the further below the request the likelier (the deficit squared): a direction in that
-band not yet blocked, a point along it, and an
-obstacle there: one standing on the floor (a cabinet, a rack, a column) where the point
-is within reach of the floor (FLOOR_STANDING_M), else one hanging there (a shelf, a
-beam, a suspended object). It is kept if it stays inside the mapped grid and clear of
-the keep-outs (the work-piece and the panel's way to it up to the height the panel is
-carried at, the robots' bases at every height), blocks something new, and pushes
-neither the density past the request by more than TOLERANCE nor any band past it by
-more than BAND_TOLERANCE. Drawing stops once the density is within half a point of the
-request. The achieved density and each band's share are recorded per trial.
+The density is the share of the hemisphere's directions above the task's target (the
+slot; without the task, the primary target), from 10 deg elevation, that obstacles block
+(placement/density.py). The paper counts it within the depth of field's far limit; the
+clutter is made to hold it at every radius from the depth of field's near limit (no
+camera frames the task sharply from nearer) out to the far limit, so that a camera
+anywhere in its depth of field faces the requested density: the obstacles that count
+stand within the near limit of the slot, on the table beside the plate and around it,
+and whatever stands further out blocks only directions already blocked.
+
+Each obstacle is drawn for a 10 deg elevation band, the further below the request the
+likelier (the deficit squared): a direction in that band not yet blocked within the
+near limit, a point along it within that limit, and an obstacle there, standing on
+what is under it (the floor, or the table or plate) if that point is within reach of it
+(FLOOR_STANDING_M: a box, a fixture, a rack), else hanging (a shelf, a beam, a
+suspended object). It is kept if it stays inside the mapped grid and in the room the
+clutter has (sim/experiments/clutter_room.py: clear of the work-piece, of the panel's
+way to its slot and the robots' starts), blocks something new within the near limit,
+and keeps the share within the far limit at most TOLERANCE above the request. Drawing
+stops once the share within the near limit is within half a point of the request. The
+blocked share at each radius, and each band's share within the far limit, are recorded
+per trial.
 """
 
 from __future__ import annotations
@@ -26,43 +32,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from placement.density import Primitive, band_count, band_shares, elevation_bands, ray_hits
+from placement.density import (
+    Primitive,
+    band_shares,
+    elevation_bands,
+    ray_entry,
+)
 from sim.config.scenario import ObstacleConfig, Scenario
+from sim.experiments.clutter_room import (
+    HOLE_MARGIN_M,
+    ROBOT_ROOM_M,
+    Boxes,
+    ClutterRoom,
+    workpiece_solids,
+)
+from sim.stages.corridor import carry_corridor
 from sim.world.scene import build_scene
 
-TOLERANCE = 0.02  # the achieved density is within this of the request
-BAND_TOLERANCE = 0.06  # and no band more than this above it
+TOLERANCE = 0.02  # the share at every radius is within this of the request
 AIM = 0.005  # drawing stops this close below the request
-MAX_DRAWS = 3000
-# A point of an obstacle this high (m) or lower gets one standing on the floor (cabinets
-# and racks are at most about this tall); above, it hangs (shelves, beams, lamps)
+MAX_DRAWS = 4000
+# A point of an obstacle this high (m) or lower above what is under it gets one standing
+# there (cabinets, racks and fixtures are at most about this tall); above, it hangs
 FLOOR_STANDING_M = 1.2
-MIN_DISTANCE_M = 0.3  # obstacles at least this far from the target along the ray
-PANEL_WAY_MARGIN_M = 0.15  # the panel's way is kept clear this far above its carry
-
-
-@dataclass(frozen=True)
-class ClutterKeepOut:
-    """A vertical cylinder obstacles must not enter: centre (x, y) and radius (m), from
-    the floor up to ``top`` (m; infinite: every height)."""
-
-    x: float
-    y: float
-    radius: float
-    top: float = math.inf
-
-
-def keep_outs(s: Scenario, way_top_m: float) -> list[ClutterKeepOut]:
-    """Where a scenario's obstacles must not stand: the work-piece (0.55 m about its
-    centre) and the panel where it lies (0.25 m), and the carry between them every 0.2 m,
-    up to ``way_top_m`` (the panel's way: above it, shelves may hang); each robot's base
-    (0.7 m: room to turn and reach) at every height."""
-    work, panel = np.asarray(s.workpiece.position, float), np.asarray(s.panel.position[:2])
-    steps = max(2, int(np.linalg.norm(work - panel) / 0.2) + 1)
-    way = [panel + t * (work - panel) for t in np.linspace(0.0, 1.0, steps)]
-    return [ClutterKeepOut(float(work[0]), float(work[1]), 0.55, way_top_m),
-            *[ClutterKeepOut(float(x), float(y), 0.25, way_top_m) for x, y in way],
-            *[ClutterKeepOut(b.x, b.y, 0.7) for b in s.base_poses()]]
+# Radii (m) besides the near and far limits the blocked share is recorded at
+RECORDED_RADII_M = (0.6, 0.8, 1.0)
 
 
 def primitive(o: ObstacleConfig) -> Primitive:
@@ -83,21 +77,25 @@ def extent_z(o: ObstacleConfig) -> tuple[float, float]:
     return o.position[2] - half, o.position[2] + half
 
 
-def draw(rng: np.random.Generator, target: np.ndarray, direction: np.ndarray, radius: float,
-         floor_z: float) -> ObstacleConfig:
-    """One random obstacle on the ray from ``target`` along ``direction``, between
-    MIN_DISTANCE_M and 0.9 ``radius``: standing on the floor (at ``floor_z``) if that
-    point is at most FLOOR_STANDING_M above it, else hanging there."""
-    point = target + rng.uniform(MIN_DISTANCE_M, 0.9 * radius) * direction
+def draw(rng: np.random.Generator, target: np.ndarray, direction: np.ndarray, near: float,
+         room: ClutterRoom) -> ObstacleConfig | None:
+    """One random obstacle through a point on the ray from ``target`` along ``direction``
+    within ``near`` (m): standing on what is under that point if it is at most
+    FLOOR_STANDING_M above it, else hanging there; None if the point is inside the
+    work-piece."""
+    point = target + rng.uniform(0.0, near) * direction
     x, y, z = (float(v) for v in point)
     yaw = float(rng.uniform(0, 180))
-    height = z - floor_z
-    if height <= FLOOR_STANDING_M:  # a cabinet, a rack or a column reaching past the ray
+    under = room.support(x, y)
+    height = z - under
+    if height < 0:
+        return None
+    if height <= FLOOR_STANDING_M:  # a box, a fixture or a rack reaching past the ray
         top = height + rng.uniform(0.02, 0.2)
         if rng.random() < 0.7:
             half = (rng.uniform(0.04, 0.15), rng.uniform(0.04, 0.25), top / 2)
-            return ObstacleConfig("box", (x, y, floor_z + top / 2), half, yaw)
-        return ObstacleConfig("cylinder", (x, y, floor_z + top / 2),
+            return ObstacleConfig("box", (x, y, under + top / 2), half, yaw)
+        return ObstacleConfig("cylinder", (x, y, under + top / 2),
                               (rng.uniform(0.03, 0.1), top / 2))
     kind = rng.random()
     if kind < 0.45:  # a shelf
@@ -118,73 +116,104 @@ def _inside(o: ObstacleConfig, low: np.ndarray, high: np.ndarray) -> bool:
                 and low[2] - 1e-9 <= bottom and top <= high[2])
 
 
-def _clear(o: ObstacleConfig, keep_out: list[ClutterKeepOut]) -> bool:
-    bottom, _ = extent_z(o)
-    return all(math.hypot(o.position[0] - k.x, o.position[1] - k.y) >= footprint(o) + k.radius
-               or bottom >= k.top for k in keep_out)
-
-
 @dataclass(frozen=True)
 class Clutter:
-    """Generated obstacles, the density they achieve and each elevation band's blocked
-    share (10-20 deg first)."""
+    """Generated obstacles, the origin and normal their density is counted about, and
+    how far each counting direction runs before its first obstacle (m; inf: free)."""
 
     obstacles: tuple[ObstacleConfig, ...]
-    density: float
-    band_shares: np.ndarray
+    origin: np.ndarray
+    normal: np.ndarray
+    first_hit: np.ndarray
+    near: float  # the radii (m) the density is held over
+    far: float
+
+    def share(self, radius: float) -> float:
+        """The share of directions blocked within ``radius`` (m)."""
+        return float((self.first_hit <= radius).mean())
+
+    @property
+    def density(self) -> float:
+        """The paper's density: the share blocked within the far limit."""
+        return self.share(self.far)
+
+    @property
+    def band_shares(self) -> np.ndarray:
+        """Each 10 deg elevation band's share blocked within the far limit, lowest first."""
+        return band_shares(self.first_hit <= self.far, elevation_bands(self.normal)[1])
+
+    def by_radius(self) -> list[list[float]]:
+        """[radius (m), share blocked within it] at the near limit, RECORDED_RADII_M
+        and the far limit."""
+        radii = [self.near, *(r for r in RECORDED_RADII_M if self.near < r < self.far), self.far]
+        return [[round(r, 3), round(self.share(r), 6)] for r in radii]
+
+    def faced(self, position: np.ndarray) -> float:
+        """The share a camera at ``position`` (m) faces: blocked within its distance."""
+        return self.share(float(np.linalg.norm(np.asarray(position, float) - self.origin)))
 
 
-def generate(request: float, target: np.ndarray, normal: np.ndarray, radius: float,
-             keep_out: list[ClutterKeepOut], rng: np.random.Generator,
-             grid: tuple[np.ndarray, np.ndarray] | None = None, floor_z: float = 0.0
-             ) -> Clutter:
-    """Obstacles occluding ``request`` (a fraction) of the target's hemisphere within
-    ``radius``, each elevation band about as much, all inside ``grid`` (its lowest and
-    highest corners, m; None: anywhere). Raises ValueError if the request cannot be
-    reached."""
+def generate(request: float, target: np.ndarray, normal: np.ndarray, near: float, far: float,
+             room: ClutterRoom, rng: np.random.Generator,
+             grid: tuple[np.ndarray, np.ndarray] | None = None) -> Clutter:
+    """Obstacles in ``room`` occluding ``request`` (a fraction) of the target's
+    hemisphere within every radius from ``near`` to ``far`` (m), within TOLERANCE,
+    all inside ``grid`` (its lowest and highest corners, m; None: anywhere). Raises
+    ValueError if the request cannot be reached."""
     if not 0 <= request < 0.9:
         raise ValueError(f"occlusion density {request} is not in [0, 0.9)")
     target = np.asarray(target, float)
-    directions, band = elevation_bands(normal)
-    blocked = np.zeros(len(directions), bool)
+    directions, _ = elevation_bands(normal)
+    first = np.full(len(directions), np.inf)
     chosen: list[ObstacleConfig] = []
-    density = 0.0
     for _ in range(MAX_DRAWS):
-        if density >= request - AIM:
+        within_near = first <= near
+        if within_near.mean() >= request - AIM:
             break
-        # the band furthest below the request most likely: never stuck on one that
-        # has no room left
-        deficit = np.maximum(request - band_shares(blocked, band), 0.0) ** 2 + 1e-9
-        chosen_band = rng.choice(band_count(), p=deficit / deficit.sum())
-        candidates = np.flatnonzero((band == chosen_band) & ~blocked)
-        if len(candidates) == 0:
+        candidates = np.flatnonzero(~within_near)
+        o = draw(rng, target, directions[rng.choice(candidates)], near, room)
+        if o is None or not room.clear(o) or (grid is not None and not _inside(o, *grid)):
             continue
-        o = draw(rng, target, directions[rng.choice(candidates)], radius, floor_z)
-        if not _clear(o, keep_out) or (grid is not None and not _inside(o, *grid)):
-            continue
-        trial = blocked | ray_hits(target, directions, primitive(o), radius)
-        achieved = float(trial.mean())
-        if (achieved > request + TOLERANCE or achieved <= density
-                or band_shares(trial, band).max() > request + BAND_TOLERANCE):
-            continue  # too much, anywhere, or hides nothing new
+        trial = np.minimum(first, ray_entry(target, directions, primitive(o)))
+        if ((trial <= far).mean() > request + TOLERANCE
+                or (trial <= near).sum() <= within_near.sum()):
+            continue  # too much, or hides nothing new within the near limit
         chosen.append(o)
-        blocked, density = trial, achieved
+        first = trial
+    clutter = Clutter(tuple(chosen), target, np.asarray(normal, float), first, near, far)
     # the bounds as each draw is held to them (abs(0.07 - 0.05) > 0.02 in floating point:
     # the reach of the upper bound itself was refused, and a sweep stopped at trial 85)
-    if not request - TOLERANCE <= density <= request + TOLERANCE:
-        raise ValueError(f"could not reach occlusion density {request:.2f} "
-                         f"(got {density:.3f} after {MAX_DRAWS} draws)")
-    return Clutter(tuple(chosen), density, band_shares(blocked, band))
+    if not (request - TOLERANCE <= clutter.share(near)
+            and clutter.share(far) <= request + TOLERANCE):
+        raise ValueError(f"could not reach occlusion density {request:.2f} within "
+                         f"{near:g} m (got {clutter.share(near):.3f} after {MAX_DRAWS} draws)")
+    return clutter
+
+
+def clutter_target(s: Scenario) -> tuple[np.ndarray, np.ndarray, ClutterRoom]:
+    """Where scenario ``s``'s (its own obstacles left out) density is counted about (the
+    slot with the task on, else the primary target: position and normal) and the room
+    its clutter has."""
+    scene = build_scene(dataclasses.replace(s, obstacles=()))
+    data = scene.make_data()
+    if s.task.enabled:
+        site = data.site("workpiece/slot")
+        origin, normal = site.xpos.copy(), site.xmat.reshape(3, 3)[:, 2].copy()
+        corridor = carry_corridor(scene.model, data, s.task)
+        way = Boxes(corridor.centres, corridor.rotations, corridor.halves)
+    else:
+        origin, normal = scene.primary.position, scene.primary.normal
+        way = Boxes.of([], [], [])
+    columns = [*((b.x, b.y, ROBOT_ROOM_M, math.inf) for b in s.base_poses()),
+               *((float(t.position[0]), float(t.position[1]), t.radius + HOLE_MARGIN_M,
+                  float(t.position[2]) + HOLE_MARGIN_M) for t in scene.targets)]
+    return origin, normal, ClutterRoom(workpiece_solids(scene.model, data), way, tuple(columns))
 
 
 def scenario_clutter(s: Scenario, request: float, rng: np.random.Generator) -> Clutter:
-    """Clutter for scenario ``s`` (its own obstacles left out) at density ``request``
-    about its primary target, within its camera's far limit and inside its map's grid,
-    clear of its work-piece, its panel's way and its robots."""
-    scene = build_scene(dataclasses.replace(s, obstacles=()))
-    target = scene.primary
-    panel = 2 * float(scene.model.geom("panel/panel").size.max())  # its longest side (m)
-    way_top = float(target.position[2]) + s.task.approach_m + panel + PANEL_WAY_MARGIN_M
+    """Clutter for scenario ``s`` (its own obstacles left out) at density ``request``,
+    held from its camera's near limit to its far limit, inside its map's grid and in
+    the room the clutter has."""
+    origin, normal, room = clutter_target(s)
     grid = (np.asarray(s.grid.bounds_min, float), np.asarray(s.grid.bounds_max, float))
-    return generate(request, target.position, target.normal, s.camera.far_m,
-                    keep_outs(s, way_top), rng, grid)
+    return generate(request, origin, normal, s.camera.near_m, s.camera.far_m, room, rng, grid)

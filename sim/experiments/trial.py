@@ -1,8 +1,10 @@
 """One paired trial of a sweep: a random scene at an occlusion density, mapped once, and
 every placement method run on it from the same start.
 
-1. Obstacles are generated around the primary target until the requested occlusion
-   density is reached (sim/experiments/generate.py); the density achieved is recorded.
+1. Obstacles are generated about the slot until the requested occlusion density holds
+   from the depth of field's near limit to its far limit (sim/experiments/generate.py);
+   the density achieved at each radius, and the density each placed camera faces (the
+   share blocked within its distance of the slot), are recorded.
 2. The robots map the scene once (the episode's mapping stage).
 3. Each method starts from the mapped state (the robots where mapping left them, the
    same map) with its own random stream, seeded by the trial and the method's name, so
@@ -72,7 +74,8 @@ def task_rng(seed: int) -> np.random.Generator:
 
 
 def _method_record(method: MethodConfig, robots: list[dict[str, Any]], frame: dict[str, Any],
-             task: dict[str, Any] | None, seconds: float) -> dict[str, Any]:
+                   task: dict[str, Any] | None, seconds: float, clutter: Clutter
+                   ) -> dict[str, Any]:
     task = task or {}
     return {
         "method": method.name, "placement": method.placement, "secondary": method.secondary,
@@ -90,6 +93,12 @@ def _method_record(method: MethodConfig, robots: list[dict[str, Any]], frame: di
                     "target": r.get("target", {}).get("name"),
                     "rating": r.get("rating", {}),
                     "position": r["pose"]["position"],
+                    # how far from the slot it stands (m), and the share of directions
+                    # blocked within that distance: the density this camera faces
+                    **({"slot_distance_m": round(float(np.linalg.norm(
+                        np.asarray(r["pose"]["position"]) - clutter.origin)), 4),
+                        "faced_density": round(clutter.faced(r["pose"]["position"]), 6)}
+                       if r["placed"] else {}),
                     # physics steps in contact over the robot's moves (none is the rule)
                     "contact_steps": sum((p.get("motion") or {}).get("contact_steps", 0)
                                          for p in r.get("placements", [])),
@@ -141,8 +150,8 @@ def _run_trial(spec: TrialSpec) -> dict[str, Any]:
             began = time.perf_counter()
             run = world.restored(mapped, method_rng(spec.seed, method), task_rng(spec.seed))
             outcome = place_look_do(run, renderer, problem, method.placement, method.secondary)
-            outcomes.append(_method_record(method, outcome.robots(run), outcome.frame, outcome.task,
-                                     time.perf_counter() - began))
+            outcomes.append(_method_record(method, outcome.robots(run), outcome.frame,
+                                           outcome.task, time.perf_counter() - began, clutter))
         render_s = renderer.seconds
     timings = timer.rounded(3)
     timings["rendering"] = round(render_s, 3)  # within the stages above
@@ -152,6 +161,9 @@ def _run_trial(spec: TrialSpec) -> dict[str, Any]:
         "density": spec.density, "achieved_density": round(clutter.density, 6),
         # the blocked share of each 10 deg elevation band, 10-20 deg first
         "blocked_by_elevation": clutter.band_shares.round(4).tolist(),
+        # [radius (m), blocked share within it]: the depth of field's near limit, 0.6,
+        # 0.8 and 1.0 m, and its far limit (the density above is the last)
+        "density_by_radius": clutter.by_radius(),
         "obstacles": len(scenario.obstacles),
         "workpiece_error": world.workpiece_error.round(6).tolist(),
         "secondary_errors": world.secondary_errors,
