@@ -387,6 +387,7 @@ def _median_p90(values: list[float], form: str) -> str:
 def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
     db = tmp_path / "report.sqlite"
     shutil.copy(tiny.parent / "reference.sqlite", db)
+    near_m = load_sweep(tiny).scenario.camera.near_m  # the density is held from there
     # count from the stored trial records, not from the tables the report reads
     count: dict[tuple[str, float, float], list[int]] = {}
     with sqlite3.connect(db) as c:
@@ -440,9 +441,24 @@ def test_the_report_matches_a_hand_count(tiny, reference, tmp_path):
         finals = sorted(1e3 * m["final_displacement_m"] for m in runs if m["attempted"])
         steps = sorted(m["steps"] for m in runs if m["attempted"])
         final = _median_p90(finals, "{:.2f}")
+        faced = sorted(r["faced_density"] for m in runs for r in m["robots"] if r["placed"])
+        middle = (faced[(len(faced) - 1) // 2] + faced[len(faced) // 2]) / 2 if faced else None
+        nearer = sum(r["slot_distance_m"] < near_m for m in runs for r in m["robots"]
+                     if r["placed"])
         assert (f"| {method} | {100 * density:g} % | {n} | {placed:.2f} | {saw:.2f} | "
                 f"{round(100 * blind / n)} % | {moved:.2f} | {final} | "
-                f"{_median_p90(steps, '{:g}')} |") in text
+                f"{_median_p90(steps, '{:g}')} | "
+                f"{'-' if middle is None else f'{100 * middle:.1f}'} | {nearer} |") in text
+    # the blocked share within each radius of the slot, by hand
+    radii: dict[float, list[list[list[float]]]] = {}
+    with sqlite3.connect(db) as c:
+        for density, record in c.execute("SELECT density, record FROM trials"):
+            radii.setdefault(density, []).append(json.loads(record)["density_by_radius"])
+    for density, rows in radii.items():
+        assert rows[0][0][0] == near_m
+        means = [sum(r[k][1] for r in rows) / len(rows) for k in range(len(rows[0]))]
+        assert ("| " + " | ".join([f"{100 * density:g} %"] + [f"{100 * v:.1f}" for v in means])
+                + " |") in text
     assert text == (tmp_path / "out" / "report.md").read_text()
     assert "(100)" in text  # the paper's optimal at 5 %, 20 % tolerance, with secondary
     csv_lines = (tmp_path / "out" / "report.csv").read_text().splitlines()

@@ -126,6 +126,31 @@ def elevation_bands(db: str | Path) -> dict[float, list[float]]:
             for d, rows in sorted(by_density.items())}
 
 
+def radius_shares(db: str | Path) -> dict[float, list[list[float]]]:
+    """Each requested density's mean [radius (m), blocked share within it of the slot],
+    over the trials that recorded them (older sweeps did not)."""
+    by_density: dict[float, list[list[list[float]]]] = defaultdict(list)
+    for density, record in trial_records(db):
+        if record.get("density_by_radius"):
+            by_density[density].append(record["density_by_radius"])
+    return {d: [[rows[0][k][0], sum(r[k][1] for r in rows) / len(rows)]
+                for k in range(len(rows[0]))] for d, rows in sorted(by_density.items())}
+
+
+def radius_markdown(shares: dict[float, list[list[float]]]) -> str:
+    """The blocked share within each radius of the slot, a row per requested density."""
+    if not shares:
+        return ""
+    radii = [r for r, _ in next(iter(shares.values()))]
+    head = ["Density"] + [f"{r:g} m" for r in radii]
+    lines = ["Blocked share (%) within each radius of the slot (the depth of field's near "
+             "limit first, its far limit last), mean over the trials", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join([f"{100 * d:g} %"] + [f"{100 * v:.1f}" for _, v in rows]) + " |"
+              for d, rows in shares.items()]
+    return "\n".join(lines) + "\n"
+
+
 def step_limit(db: str | Path) -> dict[tuple[str, float], tuple[int, int]]:
     """Per method and requested density: how many attempted tasks ended at the sweep's
     step limit (``max_steps``), of how many attempted."""
@@ -171,8 +196,9 @@ def bands_markdown(bands: dict[float, list[float]]) -> str:
         return ""
     count = len(next(iter(bands.values())))
     head = ["Density"] + [f"{10 + 10 * k}-{20 + 10 * k} deg" for k in range(count)]
-    lines = ["Blocked share (%) of each elevation band above the primary target, mean over "
-             "the trials", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines = ["Blocked share (%) of each elevation band above the target the density is "
+             "counted about, mean over the trials", "", "| " + " | ".join(head) + " |",
+             "|" + "---|" * len(head)]
     lines += ["| " + " | ".join([f"{100 * d:g} %"] + [f"{100 * v:.1f}" for v in shares]) + " |"
               for d, shares in bands.items()]
     return "\n".join(lines) + "\n"
@@ -193,6 +219,9 @@ class Views:
     final_mm: tuple[float, float] | None  # attempted tasks' final displacement (mm):
     # median and 90th percentile (numpy's linear interpolation)
     steps: tuple[float, float] | None  # attempted tasks' steps: median, 90th percentile
+    faced: float | None = None  # the density placed cameras faced (within their distance
+    # of the slot), median; None where the records have none
+    nearer: int = 0  # placed cameras nearer the slot than the radius the density is held from
 
 
 def camera_views(db: str | Path) -> list[Views]:
@@ -202,10 +231,13 @@ def camera_views(db: str | Path) -> list[Views]:
     import numpy as np
 
     rows: dict[tuple[str, float], list[dict[str, Any]]] = defaultdict(list)
+    held_from: dict[tuple[str, float], list[float]] = defaultdict(list)
     for density, record in trial_records(db):
         for method in record["methods"]:
             if "robots" in method:  # a record that kept its robots (taskcam sweep's)
                 rows[(method["method"], density)].append(method)
+                held = record.get("density_by_radius")  # 0: none recorded, none counted
+                held_from[(method["method"], density)].append(held[0][0] if held else 0.0)
     out = []
     for (name, density), runs in sorted(rows.items()):
         robots = [m["robots"] for m in runs]
@@ -213,6 +245,10 @@ def camera_views(db: str | Path) -> list[Views]:
                  if m.get("attempted") and m.get("final_displacement_m") is not None]
         finals = [1e3 * m["final_displacement_m"] for m in ended]
         steps = [m["steps"] for m in ended]
+        faced = [r["faced_density"] for rs in robots for r in rs if "faced_density" in r]
+        near = held_from[(name, density)]
+        nearer = sum(r["slot_distance_m"] < radius for rs, radius in zip(robots, near, strict=True)
+                     for r in rs if "slot_distance_m" in r)
         out.append(Views(
             name, density, len(runs),
             sum(sum(bool(r["placed"]) for r in rs) for rs in robots) / len(runs),
@@ -220,7 +256,8 @@ def camera_views(db: str | Path) -> list[Views]:
             sum(not any(r["placed"] and r["seen"] for r in rs) for rs in robots),
             sum(int(m.get("replacements") or 0) for m in runs) / len(runs),
             (float(np.median(finals)), float(np.percentile(finals, 90))) if finals else None,
-            (float(np.median(steps)), float(np.percentile(steps, 90))) if steps else None))
+            (float(np.median(steps)), float(np.percentile(steps, 90))) if steps else None,
+            float(np.median(faced)) if faced else None, nearer))
     return out
 
 
@@ -231,15 +268,19 @@ def views_markdown(views: list[Views]) -> str:
     lines = ["What each method's cameras did (the trials' records): cameras placed and "
              "cameras that saw their target, mean a trial (of the robots); trials where "
              "none saw one; re-placements during the task, mean a trial; the attempted "
-             "tasks' final displacement and steps, median / 90th percentile", "",
+             "tasks' final displacement and steps, median / 90th percentile; the density "
+             "the placed cameras faced (blocked within their distance of the slot), "
+             "median, and how many stood nearer than the density is held from", "",
              "| method | density | trials | placed | saw target | none saw | "
-             "re-placements | final mm | steps |", "|---|---|---:|---:|---:|---:|---:|---|---|"]
+             "re-placements | final mm | steps | faced % | nearer |",
+             "|---|---|---:|---:|---:|---:|---:|---|---|---:|---:|"]
     for v in views:
         final = "-" if v.final_mm is None else f"{v.final_mm[0]:.2f} / {v.final_mm[1]:.2f}"
         steps = "-" if v.steps is None else f"{v.steps[0]:g} / {v.steps[1]:g}"
+        faced = "-" if v.faced is None else f"{100 * v.faced:.1f}"
         lines.append(f"| {v.method} | {100 * v.density:g} % | {v.trials} | {v.placed:.2f} | "
                      f"{v.saw:.2f} | {percent_of(v.blind, v.trials)} | "
-                     f"{v.replacements:.2f} | {final} | {steps} |")
+                     f"{v.replacements:.2f} | {final} | {steps} | {faced} | {v.nearer} |")
     return "\n".join(lines) + "\n"
 
 

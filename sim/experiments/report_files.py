@@ -18,6 +18,8 @@ from sim.experiments.report import (
     failed_markdown,
     failed_trials,
     markdown,
+    radius_markdown,
+    radius_shares,
     step_limit,
     step_limit_markdown,
     views_markdown,
@@ -37,7 +39,8 @@ def write_report(db: str | Path, out: str | Path | None = None) -> dict[str, Any
     folder.mkdir(parents=True, exist_ok=True)
     text = markdown(table)
     for extra in (failed_markdown(failed_trials(db)), step_limit_markdown(step_limit(db)),
-                  bands_markdown(elevation_bands(db)), views_markdown(camera_views(db))):
+                  radius_markdown(radius_shares(db)), bands_markdown(elevation_bands(db)),
+                  views_markdown(camera_views(db))):
         if extra:
             text += "\n" + extra
     ordered = claims.markdown(tested)
