@@ -2,20 +2,23 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from calibration import detect_holes, disk_template, locate_hole, log_response, to_gray
 from calibration.target_frame import projected_disk
 from mapping import Pinhole, opencv_pose, world_to_camera
-from sim.config.scenario import load_scenario
+from sim.config.scenario import TargetConfig, load_scenario
+from sim.config.schema import ScenarioError
 from sim.world.ik import solve_camera_pose
 from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import build_scene
+from sim.world.scene import HOLE_LIFT, build_scene
 
 
 def _disk_image(u: float, v: float, r: float, shape=(240, 320), noise: float = 0.0,
@@ -101,3 +104,45 @@ def test_an_oblique_hole_is_found_by_its_ellipse():
     assert template[centre + 6, centre - 4] == 1.0  # 7 px along the minor axis: outside
     found = locate_hole(img, (u + 3, v - 2), math.sqrt(a * b), search_px=10, shape=shape)
     assert found is not None and math.hypot(found.u - u, found.v - v) < 0.25
+
+
+def test_a_hole_on_a_fixture_is_found_where_the_camera_model_projects_it():
+    """A secondary target on a fixture of its own (a post beside the table carrying a
+    small steel plate): the scene puts its hole at the fixture's top, and a rendered
+    view finds it there, as it finds the plate's."""
+    base = load_scenario()
+    far = TargetConfig("far", "secondary", (-0.65, -0.45), 0.02, 0.001, "fixture", 0.75)
+    s = dataclasses.replace(base, workpiece=dataclasses.replace(
+        base.workpiece, targets=(*base.workpiece.targets, far)))
+    scene = build_scene(s)
+    target = next(t for t in scene.targets if t.name == "far")
+    assert np.allclose(target.position, [-0.65, -0.45, 0.75 + HOLE_LIFT])
+    robot = scene.robots[0]
+    goal = target.position + np.array([-0.35, -0.1, 0.45])
+    ik = solve_camera_pose(scene.model, scene.start_qpos, robot, target.position, goal)
+    data = scene.make_data(ik.qpos)
+    # the fixture's top is flush with the hole's face, its post stands on the floor
+    top = scene.model.geom("workpiece/fixture_far")
+    assert data.geom_xpos[top.id][2] + top.size[2] == pytest.approx(0.75)
+    post = scene.model.geom("workpiece/fixture_far_post")
+    assert data.geom_xpos[post.id][2] - post.size[2] == pytest.approx(0.0)
+    pinhole: Pinhole = camera_pinhole(scene.model, robot.camera)
+    with Renderer(scene.model, pinhole.width, pinhole.height) as renderer:
+        rgb = renderer.rgb(data, robot.camera)
+    pose = opencv_pose(camera_pose(data, robot.camera))
+    disk = projected_disk(target, pose, pinhole)
+    assert disk is not None
+    in_cam = world_to_camera(pose, target.position[None])
+    radius_px = pinhole.fy * target.radius / in_cam[0, 2]
+    found = locate_hole(rgb, tuple(disk[0]), radius_px, search_px=3 * radius_px, shape=disk[1])
+    assert found is not None and found.score > 0.7
+    assert math.hypot(found.u - disk[0][0], found.v - disk[0][1]) < 0.5
+
+
+def test_a_fixture_below_what_it_stands_on_is_refused():
+    base = load_scenario()
+    low = TargetConfig("low", "secondary", (0.1, -0.1), 0.02, 0.001, "fixture", 0.53)
+    s = dataclasses.replace(base, workpiece=dataclasses.replace(
+        base.workpiece, targets=(*base.workpiece.targets, low)))
+    with pytest.raises(ScenarioError, match="height_m"):
+        build_scene(s)

@@ -84,13 +84,19 @@ class RobotsConfig(Checked):
 
 @dataclass(frozen=True)
 class TargetConfig(Checked):
-    """A circular hole in the plate; offset in the plate frame from its centre (m)."""
+    """A circular hole: in the plate, or on a fixture of its own that the work-piece
+    carries elsewhere in the work cell (a post with a small plate on top, rigidly
+    mounted, so that the hole keeps its relation to the slot within ``st_error_m``);
+    offset in the work-piece's frame from the plate's centre (m)."""
 
     name: str = checked(lambda v: v.isidentifier(), "a name of letters, digits and _")
     role: Literal["primary", "secondary"] = "primary"
     offset_m: tuple[float, float] = (0.0, 0.0)
     radius_m: float = checked(lambda v: 0.002 <= v <= 0.1, "metres in [0.002, 0.1]", 0.02)
     st_error_m: float = nonnegative(0.0)  # secondary-to-primary geometric tolerance (eq. 4)
+    mount: Literal["plate", "fixture"] = "plate"
+    # a fixture's top (m above the floor), where its hole is
+    height_m: float = checked(lambda v: 0.1 <= v <= 1.5, "metres in [0.1, 1.5]", 0.52)
 
 
 def _default_targets() -> tuple[TargetConfig, ...]:
