@@ -10,9 +10,9 @@ anywhere in its depth of field faces the requested density: the obstacles that c
 stand within the near limit of the slot, on the table beside the plate and around it,
 and whatever stands further out blocks only directions already blocked.
 
-Each obstacle is drawn for a 10 deg elevation band, the further below the request the
-likelier (the deficit squared): a direction in that band not yet blocked within the
-near limit, a point along it within that limit, and an obstacle there, standing on
+Each obstacle is drawn through a direction not yet blocked within the near limit (any
+elevation: the panel's way keeps the sector above the slot open, so the blocking lies
+low), a point along it within that limit, and an obstacle there, standing on
 what is under it (the floor, or the table or plate) if that point is within reach of it
 (FLOOR_STANDING_M: a box, a fixture, a rack), else hanging (a shelf, a beam, a
 suspended object). It is kept if it stays inside the mapped grid and in the room the
