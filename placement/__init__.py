@@ -2,8 +2,19 @@
 
 from .detectability import DetectorLimits, detectable
 from .errors import PlacementError
+from .methods import (
+    METHODS,
+    Method,
+    MethodInput,
+    MethodSettings,
+    method_label,
+    method_named,
+    method_problem,
+    travel_weighed,
+)
 from .next_best_view import information_gain, look_at
 from .occluders import Hull, above_plane, expand, expanded_hulls, grid_occluders, target_outline
+from .random_views import biased_random, first_within_angle, informed_random
 from .rating import (
     CameraModel,
     Ratings,
@@ -12,6 +23,7 @@ from .rating import (
     angular_visibility,
     depth_of_field,
     rate,
+    rate_aimed,
     rate_best,
     resolution,
 )
@@ -19,8 +31,9 @@ from .search import (
     RatingField,
     Region,
     SearchSettings,
-    biased_random,
     candidates,
+    rate_positions,
+    region_voxels,
     search,
     target_points,
 )
@@ -28,10 +41,14 @@ from .tfv import ClearanceMap, clearance_map, distance_level, hull_depths, tfv_a
 from .visibility import line_of_sight
 
 __all__ = [
+    "METHODS",
     "CameraModel",
     "ClearanceMap",
     "DetectorLimits",
     "Hull",
+    "Method",
+    "MethodInput",
+    "MethodSettings",
     "PlacementError",
     "RatingField",
     "Ratings",
@@ -49,16 +66,25 @@ __all__ = [
     "distance_level",
     "expand",
     "expanded_hulls",
+    "first_within_angle",
     "grid_occluders",
     "hull_depths",
     "information_gain",
+    "informed_random",
     "line_of_sight",
     "look_at",
+    "method_label",
+    "method_named",
+    "method_problem",
     "rate",
+    "rate_aimed",
     "rate_best",
+    "rate_positions",
+    "region_voxels",
     "resolution",
     "search",
     "target_outline",
     "target_points",
     "tfv_at",
+    "travel_weighed",
 ]

@@ -152,3 +152,20 @@ def rate(positions: np.ndarray, target: TargetModel, camera: CameraModel, tfv: n
     """Rate camera positions (n, 3) viewing ``target``. ``tfv`` is each position's target
     field visibility in [0, 1] and ``occupancy`` the probability P of its voxel."""
     return rate_best(positions, [target], camera, tfv, occupancy, weights)[0]
+
+
+def rate_aimed(positions: np.ndarray, targets: Sequence[TargetModel], aims: np.ndarray,
+               camera: CameraModel, tfv: np.ndarray, occupancy: np.ndarray,
+               weights: Weights = Weights()) -> Ratings:
+    """Rate camera positions (n, 3) each for the target it is aimed at (``aims``: an
+    index into ``targets`` per position; ``tfv``: (targets, n))."""
+    positions = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, 3)
+    aims = np.asarray(aims)
+    terms = np.empty((6, len(positions)))
+    for k, target in enumerate(targets):
+        mine = np.flatnonzero(aims == k)
+        if len(mine):
+            r = rate(positions[mine], target, camera, np.asarray(tfv)[k, mine],
+                     np.asarray(occupancy)[mine], weights)
+            terms[:, mine] = (r.dof, r.resolution, r.tfv, r.tav, r.free, r.total)
+    return Ratings(positions, *terms)

@@ -4,6 +4,8 @@ Strategies: ``exhaustive`` rates every candidate; ``coarse`` every ``coarse_step
 voxel along each axis; ``bounded`` only candidates within ``max_distance`` of a target;
 ``random`` a random subset of ``samples`` candidates. Each returns the rating field of
 what it evaluated; each candidate keeps the target that rates it best (sec. 2.3.5).
+:func:`rate_positions` rates positions chosen otherwise, each for its best target or the
+one it is aimed at.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from mapping import LOG_ODDS_SCALE, OccupancyGrid, circle_in_plane, stored_log_o
 
 from .errors import PlacementError
 from .occluders import Hull, expanded_hulls, grid_occluders, target_outline
-from .rating import CameraModel, Ratings, TargetModel, Weights, rate_best
+from .rating import CameraModel, Ratings, TargetModel, Weights, rate_aimed, rate_best
 from .tfv import clearance_map
 
 Strategy = Literal["exhaustive", "coarse", "bounded", "random"]
@@ -124,18 +126,34 @@ def _candidates(log_odds: np.ndarray, origin: np.ndarray, resolution: float, lim
     return positions[:count].copy(), occupancy[:count].copy()
 
 
+def _region_arrays(region: Region) -> tuple[np.ndarray, np.ndarray]:
+    """The region's keep-out spheres (k, 4) and disc (x, y, r; r < 0 for none) as arrays."""
+    keep_out = np.array([[*c, r] for c, r in region.keep_out], dtype=float).reshape(-1, 4)
+    within = (np.array([*region.within[0], region.within[1]], dtype=float)
+              if region.within is not None else np.array([0.0, 0.0, -1.0]))
+    return keep_out, within
+
+
 def candidates(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraModel,
                free_threshold: float, region: Region) -> tuple[np.ndarray, np.ndarray]:
     """Centres (n, 3) of known-free voxels (P < ``free_threshold``) in the region and in
     some target's depth of field, in grid order, and their occupancy probabilities."""
     limit = float(stored_log_odds(free_threshold))
-    keep_out = np.array([[*c, r] for c, r in region.keep_out], dtype=float).reshape(-1, 4)
-    within = (np.array([*region.within[0], region.within[1]], dtype=float)
-              if region.within is not None else np.array([0.0, 0.0, -1.0]))
+    keep_out, within = _region_arrays(region)
     return _candidates(grid.log_odds, grid.origin, grid.resolution, limit, region.z_min,
                        region.z_max, keep_out, within,
                        np.array([t.position for t in targets], dtype=float), camera.near,
                        camera.far)
+
+
+def region_voxels(grid: OccupancyGrid, region: Region) -> np.ndarray:
+    """Centres (n, 3; m) of every voxel of ``grid`` in ``region``, whatever the map holds
+    there (free, occupied or never observed), in grid order."""
+    keep_out, within = _region_arrays(region)
+    positions, _ = _candidates(grid.log_odds, grid.origin, grid.resolution, np.inf,
+                               region.z_min, region.z_max, keep_out, within, np.zeros((1, 3)),
+                               0.0, np.inf)
+    return positions
 
 
 def _select(grid: OccupancyGrid, positions: np.ndarray, targets: Sequence[TargetModel],
@@ -171,10 +189,22 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
     expanded occluders by target plane and radius: searches of one map with the same
     ``settings`` that share a dict hull the map once.
     """
-    grid_hulls = {} if grid_hulls is None else grid_hulls
     positions, occupancy = candidates(grid, targets, camera, free_threshold, region)
     keep = _select(grid, positions, targets, settings, rng)
-    positions, occupancy = positions[keep], occupancy[keep]
+    return rate_positions(grid, targets, camera, positions[keep], occupancy[keep], weights,
+                          settings, extra_occluders, grid_hulls)
+
+
+def rate_positions(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraModel,
+                   positions: np.ndarray, occupancy: np.ndarray, weights: Weights = Weights(),
+                   settings: SearchSettings = SearchSettings(),
+                   extra_occluders: Sequence[np.ndarray] = (),
+                   grid_hulls: dict[tuple[float, ...], list[Hull]] | None = None,
+                   aims: np.ndarray | None = None) -> RatingField:
+    """The rating of camera ``positions`` (n, 3; m) whose voxels' P(occupied) is
+    ``occupancy``, occluders as :func:`search` takes them: each for the target that
+    rates it best, or with ``aims`` (a target index per position) for that target."""
+    grid_hulls = {} if grid_hulls is None else grid_hulls
     hulls: dict[str, list[Hull]] = {}
     tfv = np.empty((len(targets), len(positions)))
     hulls_by_plane: dict[tuple[float, ...], tuple[float, list[Hull]]] = {}
@@ -198,27 +228,9 @@ def search(grid: OccupancyGrid, targets: Sequence[TargetModel], camera: CameraMo
         tfv[k] = clearance_map(target.position, hulls[target.name], camera.near, camera.far,
                                settings.levels, settings.directions, settings.cone
                                ).tfv(positions - target.position)
-    ratings, which = rate_best(positions, targets, camera, tfv, occupancy, weights)
+    if aims is None:
+        ratings, which = rate_best(positions, targets, camera, tfv, occupancy, weights)
+    else:
+        ratings, which = rate_aimed(positions, targets, aims, camera, tfv, occupancy,
+                                    weights), np.asarray(aims)
     return RatingField(ratings, which, settings.strategy, hulls)
-
-
-def biased_random(rated: RatingField, targets: Sequence[TargetModel], camera: CameraModel,
-                  rng: np.random.Generator, max_angle_deg: float = 60.0) -> RatingField:
-    """The paper's baseline, biased random placement: candidates tried in a random order,
-    among those the rating function's region allows (known free, within reach) that see
-    a target within the depth of field and at most ``max_angle_deg`` off its normal;
-    occlusion and the rest of the rating are ignored. Each candidate keeps its rating
-    (for the record) and is assigned the first target it qualifies for."""
-    positions = rated.ratings.positions
-    which = np.full(len(positions), -1)
-    for k, t in reversed(list(enumerate(targets))):  # the first qualifying target wins
-        view = positions - t.position
-        distance = np.linalg.norm(view, axis=1)
-        n = t.normal / np.linalg.norm(t.normal)
-        cos = (view @ n) / np.maximum(distance, 1e-12)
-        ok = ((distance >= camera.near) & (distance <= camera.far)
-              & (cos >= np.cos(np.radians(max_angle_deg))))
-        which[ok] = k
-    admissible = np.flatnonzero(which >= 0)
-    return RatingField(rated.ratings, np.where(which >= 0, which, rated.target),
-                       "biased_random", rated.hulls, rng.permutation(admissible))

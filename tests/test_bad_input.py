@@ -316,6 +316,27 @@ def test_a_sweep_may_not_override_what_each_trial_sets(tmp_path):
         assert_one_line_error(code, err, spec, f"overrides.{key}")
 
 
+@pytest.mark.parametrize(("name", "why"), [
+    ("optimal", "unknown"),
+    ("no_such_module_anywhere:method", "not importable"),
+    ("placement.methods:no_such_method", "has no"),
+    ("placement.methods:ACCEPTED", "not callable"),
+])
+def test_a_placement_method_that_does_not_resolve_is_refused_naming_why(tmp_path, name, why):
+    """In a sweep file's methods and a scenario's search.method alike: one line, exit 2,
+    the accepted names and what is wrong with this one."""
+    spec = tmp_path / "sweep.toml"
+    spec.write_text(SMOKE.replace('placement = "biased_random"', f'placement = "{name}"'))
+    code, err = cli("sweep", str(spec), "--db", str(tmp_path / "r.sqlite"))
+    assert_one_line_error(code, err, spec, "methods[1].placement")
+    assert why in err and "'informed_random'" in err and "module:callable" in err
+    scenario = tmp_path / "scenario.toml"
+    scenario.write_text(f'[search]\nmethod = "{name}"\n')
+    code, err = cli("run", str(scenario), "--out", str(tmp_path / "run"))
+    assert_one_line_error(code, err, scenario, "search.method")
+    assert why in err
+
+
 def test_configs_made_in_code_are_checked_too():
     with pytest.raises(ScenarioError):
         ObstacleConfig("sphere", (0, 0, 0), (-1.0,))

@@ -9,16 +9,24 @@ import pytest
 
 from mapping import GainModel, OccupancyGrid, Pinhole, View, region_mask
 from placement import (
+    METHODS,
     CameraModel,
+    MethodInput,
+    MethodSettings,
+    Region,
     TargetModel,
     Weights,
     angular_visibility,
     biased_random,
     depth_of_field,
     information_gain,
+    informed_random,
     line_of_sight,
     look_at,
+    method_named,
+    method_problem,
     rate,
+    rate_positions,
     resolution,
     search,
     target_points,
@@ -158,15 +166,15 @@ def test_search_switches_to_a_secondary_target():
     assert covered.ratings.resolution[i] == pytest.approx(1 / R)
 
 
-def test_biased_random_placement_ignores_occlusion_within_its_bounds():
-    """The paper's baseline: a random order over the candidates in the depth of field
-    and within the angle bound, occluded or not; the same generator, the same order."""
+def test_informed_random_placement_ignores_occlusion_within_its_bounds():
+    """The rating function's candidates in the depth of field and within the angle bound,
+    occluded or not, in a random order; the same generator, the same order."""
     target = TargetModel("t", np.array([0.0, 0.0, 0.2]), UP, 0.02)
     g = free_grid(res=0.05)
     occupy(g, (-1, -1, 0), (1, 1, 0.2))
     occupy(g, (-0.15, -1, 0.5), (0.15, 1, 0.6))  # a beam over the target
     rated = search(g, [target], CAMERA)
-    field = biased_random(rated, [target], CAMERA, np.random.default_rng(3), 45.0)
+    field = informed_random(rated, [target], CAMERA, np.random.default_rng(3), 45.0)
     order = field.ranked()
     view = rated.ratings.positions - target.position
     distance = np.linalg.norm(view, axis=1)
@@ -175,10 +183,119 @@ def test_biased_random_placement_ignores_occlusion_within_its_bounds():
                              & (angle <= 45.0))
     assert sorted(order) == sorted(allowed) and len(order) > 100
     assert not np.array_equal(order, np.sort(order))  # shuffled
-    assert np.array_equal(order, biased_random(rated, [target], CAMERA,
-                                               np.random.default_rng(3), 45.0).ranked())
+    assert np.array_equal(order, informed_random(rated, [target], CAMERA,
+                                                 np.random.default_rng(3), 45.0).ranked())
     assert (rated.ratings.tfv[order] < 1).any()  # it tries views the beam (partly) hides
-    assert field.strategy == "biased_random" and (field.target[order] == 0).all()
+    assert field.strategy == "informed_random" and (field.target[order] == 0).all()
+
+
+def _brute_force_views(g: OccupancyGrid, region: Region, targets: list[TargetModel],
+                       max_angle_deg: float) -> dict[tuple[float, ...], int]:
+    """Every voxel centre of ``g`` in ``region`` that sees a target within the angle
+    bound, with the first such target, by a loop over the voxels."""
+    out = {}
+    for c in g.centers().reshape(-1, 3):
+        if not region.z_min <= c[2] <= region.z_max:
+            continue
+        if region.within is not None and np.hypot(*(c[:2] - region.within[0])) > region.within[1]:
+            continue
+        if any(np.linalg.norm(c - np.array(p)) < r for p, r in region.keep_out):
+            continue
+        for k, t in enumerate(targets):
+            v = c - t.position
+            d = np.linalg.norm(v)
+            if d > 0 and math.degrees(math.acos(min(1.0, v @ t.normal / d))) <= max_angle_deg:
+                out[tuple(np.round(c, 9))] = k
+                break
+    return out
+
+
+def test_biased_random_draws_every_view_in_the_region_and_angle_bound():
+    """The paper's baseline: the voxel centres it draws are exactly those of the region
+    within the angle of a target's normal (brute force over the grid), each aimed at the
+    first target it qualifies for, free, occupied or never observed alike; the same
+    generator gives the same order, another generator another."""
+    targets = [TargetModel("p", np.array([0.0, 0.0, 0.2]), UP, 0.02),
+               TargetModel("s", np.array([0.6, 0.0, 0.2]), np.array([1.0, 0.0, 0.0]), 0.02)]
+    g = free_grid(res=0.1)
+    occupy(g, (-1, -1, 0), (1, 1, 0.2))  # the table top
+    occupy(g, (-0.3, -1, 0.6), (0.3, 1, 0.7))  # a beam over the primary target
+    never_seen = g.centers()[..., 1] > 0.5
+    g.set_probability(0.5, never_seen)
+    region = Region(0.3, 1.6, (((-0.5, -0.5, 1.0), 0.3),), ((0.2, 0.0), 0.9))
+    positions, aims = biased_random(g, region, targets, np.random.default_rng(7), 50.0)
+    expected = _brute_force_views(g, region, targets, 50.0)
+    drawn = {tuple(np.round(p, 9)): int(k) for p, k in zip(positions, aims, strict=True)}
+    assert drawn == expected and len(drawn) == len(positions) > 50
+    assert set(aims.tolist()) == {0, 1}
+    p_drawn = g.probability_at(positions)
+    assert (p_drawn > 0.9).any()  # the beam's voxels
+    assert (np.abs(p_drawn - 0.5) < 0.01).any()  # never observed
+    assert (p_drawn < 0.1).any()  # known free
+    again, _ = biased_random(g, region, targets, np.random.default_rng(7), 50.0)
+    other, _ = biased_random(g, region, targets, np.random.default_rng(8), 50.0)
+    assert np.array_equal(positions, again) and not np.array_equal(positions, other)
+
+
+def test_biased_random_ignores_occlusion_entirely():
+    """What the map holds does not change what it draws, nor in which order: a wall over
+    the target, or none."""
+    target = TargetModel("t", np.array([0.0, 0.0, 0.2]), UP, 0.02)
+    region = Region(0.3, 1.6)
+    clear = free_grid(res=0.1)
+    walled = free_grid(res=0.1)
+    occupy(walled, (-1, -1, 0.5), (1, 1, 0.6))  # a ceiling between target and cameras
+    a = biased_random(clear, region, [target], np.random.default_rng(1), 60.0)
+    b = biased_random(walled, region, [target], np.random.default_rng(1), 60.0)
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+
+
+def test_the_papers_biased_random_chooses_without_the_rating_function():
+    """As a registered method it never asks for the rating function's field: its draws
+    are rated only for the record, each for the target it is aimed at, and tried in the
+    order drawn."""
+    targets = (TargetModel("p", np.array([0.0, 0.0, 0.2]), UP, 0.02),
+               TargetModel("s", np.array([0.5, 0.0, 0.2]), UP, 0.02, st_error=0.0005))
+    g = free_grid(res=0.1)
+    occupy(g, (-1, -1, 0), (1, 1, 0.2))
+    region = Region(0.3, 1.6)
+
+    def refuse() -> None:
+        raise AssertionError("the rating function's field was asked for")
+
+    def rate(positions: np.ndarray, aims: np.ndarray):
+        return rate_positions(g, targets, CAMERA, positions, g.probability_at(positions),
+                              aims=aims)
+
+    given = MethodInput(targets, 0, CAMERA, g, region, np.zeros(2), 1.0,
+                        np.random.default_rng(4), MethodSettings(random_max_angle_deg=50.0),
+                        refuse, rate, refuse)
+    field = METHODS["biased_random"].choose(given)
+    positions, aims = biased_random(g, region, targets, np.random.default_rng(4), 50.0)
+    assert np.array_equal(field.ratings.positions, positions)
+    assert np.array_equal(field.target, aims) and np.array_equal(field.ranked(),
+                                                                np.arange(len(positions)))
+    for k, target in enumerate(targets):  # each rated for its own target
+        mine = aims == k
+        alone = rate_positions(g, [target], CAMERA, positions[mine],
+                               g.probability_at(positions[mine]))
+        assert np.allclose(field.ratings.total[mine], alone.ratings.total)
+
+
+def test_placement_methods_are_found_by_name():
+    """The built-in methods by name, a user's by "module:callable"; what is wrong with a
+    bad name is said."""
+    assert {"rating", "biased_random", "informed_random", "information_gain"} <= set(METHODS)
+    assert method_named("biased_random") is METHODS["biased_random"]
+    assert not METHODS["biased_random"].detectable_only
+    assert not METHODS["biased_random"].site_in_frame
+    own = method_named("placement.methods:by_rating")
+    assert own.choose is METHODS["rating"].choose and not own.detectable_only
+    assert "unknown" in method_problem("nope")
+    assert "not importable" in method_problem("no_such_module_here:f")
+    assert "has no" in method_problem("placement.methods:no_such_name")
+    assert "not callable" in method_problem("placement.methods:ACCEPTED")
+    assert method_problem("rating") is None
 
 
 def test_look_at_points_the_optical_axis_at_the_target():

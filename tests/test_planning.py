@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from placement import travel_weighed
 from placement.rating import Ratings
 from placement.search import RatingField
 from sim.config.scenario import ScenarioError, load_scenario, parse_scenario
-from sim.stages.place import travel_weighed
 from sim.world.collision import KeepOutBoxes, Proximity
 from sim.world.motion import dense_path
 from sim.world.planning import ArmPlanner

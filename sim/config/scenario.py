@@ -233,18 +233,37 @@ class RatingConfig(Checked):
                                  16384)
 
 
+def check_placement_method(config: Checked, key: str, name: str) -> None:
+    """ScenarioError (at ``key`` of ``config``) unless ``name`` names a placement method:
+    a registered one, or a ``module:callable`` this process imports."""
+    from placement.methods import ACCEPTED, method_problem  # here: the config imports light
+
+    problem = method_problem(name)
+    if problem is not None:
+        raise ScenarioError(config.source_name(), key, name, f"{ACCEPTED}; {problem}")
+
+
 @dataclass(frozen=True)
 class SearchConfig(Checked):
     RETIRED: ClassVar[dict[str, str]] = {
         "reach_m": "bases drive along planned paths: search.drive_path_m (how far a base may "
                    "drive to a view, m, along its path)",
         "drive_m": "a base's drive is measured along its path now: search.drive_path_m (how "
-                   "far a base may drive to a view, m, along its path; default 6)"}
+                   "far a base may drive to a view, m, along its path; default 6)",
+        "random_max_angle_deg": "split by method: informed_max_angle_deg (informed_random, "
+                                "the biased random of earlier versions) and "
+                                "biased_random_max_angle_deg (the paper's biased random)"}
 
-    # the placement method: the rating function, the paper's biased random baseline, or
-    # next-best-view by expected information gain about the target region
-    method: Literal["rating", "biased_random", "information_gain"] = "rating"
-    random_max_angle_deg: float = checked(lambda v: 0 < v <= 90, "degrees in (0, 90]", 60.0)
+    # the placement method, by its registered name (placement/methods.py: "rating",
+    # "biased_random", "informed_random", "information_gain") or a user's own as
+    # "module:callable"
+    method: str = "rating"
+    # biased_random: the largest angle between a target's normal and the direction from
+    # it to the camera (degrees; the paper's bounded target angular view)
+    biased_random_max_angle_deg: float = checked(lambda v: 0 < v <= 90, "degrees in (0, 90]",
+                                                 60.0)
+    # informed_random: the same bound over the rating function's candidates
+    informed_max_angle_deg: float = checked(lambda v: 0 < v <= 90, "degrees in (0, 90]", 60.0)
     gain_samples: int = checked(lambda v: v >= 1, "an integer >= 1", 300)  # information_gain
     # reject a candidate when the nominal scene's geometry hides its target (an oracle:
     # off, each method knows only what its own model tells it)
@@ -275,6 +294,7 @@ class SearchConfig(Checked):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        check_placement_method(self, "method", self.method)
         if self.camera_z_m[0] >= self.camera_z_m[1]:
             raise ScenarioError(self.source_name(), "camera_z_m", self.camera_z_m,
                                 "[low, high] with low < high")

@@ -12,7 +12,7 @@ scenario's tables (e.g. a smaller camera image, to make trials cheaper)::
 
     [[methods]]
     name = "optimal"
-    placement = "rating"        # or "biased_random", "information_gain"
+    placement = "rating"        # a method's name (placement/methods.py) or "module:callable"
     secondary = true            # may the method use secondary targets?
 
     [overrides.camera]          # merged into the base scenario
@@ -28,11 +28,17 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
-from sim.config.scenario import SCENARIO_DIR, Scenario, parse_scenario, scenario_table
+from sim.config.scenario import (
+    SCENARIO_DIR,
+    Scenario,
+    check_placement_method,
+    parse_scenario,
+    scenario_table,
+)
 from sim.config.schema import (
     Checked,
     ScenarioError,
@@ -41,8 +47,6 @@ from sim.config.schema import (
     merged_tables,
 )
 
-Placement = Literal["rating", "biased_random", "information_gain"]
-
 
 @dataclass(frozen=True)
 class MethodConfig(Checked):
@@ -50,8 +54,13 @@ class MethodConfig(Checked):
 
     name: str = checked(lambda v: v.replace("_", "").isalnum(), "letters, digits and _",
                        "optimal")
-    placement: Placement = "rating"
+    # a registered placement method (placement/methods.py) or a user's "module:callable"
+    placement: str = "rating"
     secondary: bool = True  # may it place cameras for secondary targets, and use them?
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_placement_method(self, "placement", self.placement)
 
 
 def _paper_methods() -> tuple[MethodConfig, ...]:

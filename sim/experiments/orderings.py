@@ -20,14 +20,15 @@ from pathlib import Path
 
 from scipy.stats import binomtest, fisher_exact
 
-from sim.experiments.report import DIFFICULTY, NAMES, PAPER, percent, wilson, write_rows
+from placement import method_label
+from sim.experiments.report import DIFFICULTY, PAPER, percent, wilson, write_rows
 from sim.experiments.results import Results, ResultsError
 
 GAP_POINTS = 10.0  # the paper's cells must differ by more than this to make a claim
 ROOM = GAP_POINTS / 100  # both rates this near 100 % (or 0 %) leave no room for such a gap
 DENSITIES = (0.05, 0.2, 0.35)
 TOLERANCES = (0.2, 0.1, 0.01)
-PLACEMENTS = ("rating", "biased_random")
+PLACEMENTS = tuple(dict.fromkeys(key[0] for key in PAPER))  # the paper's: its table's rows
 STEPS = ((0.05, 0.2), (0.2, 0.35), (0.05, 0.35))
 
 Key = tuple[str, bool, float, float]  # placement, secondary, density, tolerance
@@ -153,7 +154,7 @@ def orderings_in(db: str | Path) -> list[Ordering]:
 
 def _cell(key: Key) -> str:
     placement, secondary, density, tol = key
-    name = NAMES.get(placement, placement).split(" (")[0]
+    name = method_label(placement).split(" (")[0]
     return (f"{name}, {'with' if secondary else 'without'} sec., {density:.0%}, "
             f"{DIFFICULTY.get(tol, f'{tol:g}')}")
 

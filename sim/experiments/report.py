@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from placement import method_label
 from sim.experiments.results import Results, ResultsError
 
 Z95 = 1.959963984540054
@@ -34,8 +35,6 @@ for _tol, _rows in _TABLE1.items():
             PAPER[(_placement, False, _density, _tol)] = str(_without)
             PAPER[(_placement, True, _density, _tol)] = str(_with)
 
-NAMES = {"rating": "Optimal (rating function)", "biased_random": "Biased random",
-         "information_gain": "Next best view (information gain)"}
 DIFFICULTY = {0.2: "easy", 0.1: "medium", 0.01: "hard"}
 
 
@@ -320,7 +319,7 @@ def markdown(table: list[Cell]) -> str:
              "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for tol in sorted({c.tolerance for c in table}, reverse=True):
         for placement in placements:
-            row = [f"{100 * tol:g} % ({DIFFICULTY.get(tol, '')})", NAMES.get(placement, placement)]
+            row = [f"{100 * tol:g} % ({DIFFICULTY.get(tol, '')})", method_label(placement)]
             for d in densities:
                 for with_secondary in (False, True):
                     cell = by_key.get((tol, placement, d, with_secondary))

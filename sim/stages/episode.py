@@ -81,7 +81,7 @@ class Outcome:
 def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, method: str,
                   secondary: bool = True) -> Outcome:
     """Stages 2-4 on the mapped ``world``: place every robot in turn by the placement
-    ``method`` (``rating``, ``biased_random`` or ``information_gain``) to view one of the
+    ``method`` (a name placement.method_named knows) to view one of the
     targets (with the task on, the slot, and with ``secondary`` the holes that stand in
     for it: :func:`task_targets`), searching ``problem`` (the rating over the map), look,
     and with the task on, do it."""

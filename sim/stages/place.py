@@ -1,10 +1,11 @@
 """Stage 2 for one robot: place its camera (sec. 2.3).
 
-The rating function is searched over known-free voxels in the robot's region (the
-robots placed before count as occluders, at their commanded poses); with the method
-``biased_random`` or ``information_gain`` the rated candidates are reordered. The
-candidates from which the hole detector can find the target (placement.detectable) are
-tried in turn until one is reachable (sim/world/planning.py: a goal configuration by IK,
+The placement method (placement/methods.py, by name) gives the candidates in the order
+they are tried: the rating function's, searched over known-free voxels in the robot's
+region (the robots placed before count as occluders, at their commanded poses), or
+others. They are tried in turn (where the method asks it, only those from which the hole
+detector can find the target, placement.detectable, and that hold the insertion site in
+frame) until one is reachable (sim/world/planning.py: a goal configuration by IK,
 a path for base and arm by OMPL that keeps clear of everything) and sees its target
 with no geometry in the way;
 the robot then moves there in the world (sim/stages/move.py) before the next robot
@@ -21,15 +22,17 @@ from typing import Any
 
 import numpy as np
 
-from mapping import Target, region_mask
+from mapping import GainModel, Target, region_mask
 from placement import (
+    MethodInput,
+    MethodSettings,
     RatingField,
     Region,
-    biased_random,
     detectable,
-    information_gain,
+    method_named,
     target_points,
 )
+from sim.config.scenario import Scenario
 from sim.stages.corrector import PoseCorrector
 from sim.stages.corridor import carry_corridor, sees_site, site_corners
 from sim.stages.exploration import gain_model
@@ -66,44 +69,41 @@ def region(world: World, robot: Robot, taken: list[np.ndarray]) -> Region:
                   ((float(base[0]), float(base[1])), reach))
 
 
-def travel_weighed(rated: RatingField, base: np.ndarray, per_m: float,
-                   reach_m: float) -> RatingField:
-    """The field ordered by its rating times exp(-``per_m`` x the base's drive to each
-    candidate: its horizontal distance from ``base`` (m) beyond the arm's reach,
-    ``reach_m``)."""
-    drive = np.maximum(np.linalg.norm(rated.ratings.positions[:, :2] - base, axis=1)
-                       - reach_m, 0.0)
-    weighed = rated.ratings.total * np.exp(-per_m * drive)
-    order = np.lexsort((np.arange(len(weighed)), -weighed))
-    return dataclasses.replace(rated, order=order[weighed[order] > 0])
-
-
 def ranked_field(world: World, problem: RatingProblem, robot: Robot,
                  targets: tuple[Target, ...], taken: list[np.ndarray], method: str,
                  extra: Sequence[np.ndarray] = ()) -> RatingField:
-    """The candidates for ``robot``'s camera in the order ``method`` tries them
-    (``rating``, weighed by the base's travel if ``rating.travel_per_m`` is set,
-    ``biased_random`` or ``information_gain``); ``extra`` are point sets of further
+    """The candidates for ``robot``'s camera in the order the placement ``method`` (a
+    name placement.method_named knows) tries them; ``extra`` are point sets of further
     occluders (the panel during the task), as the other robots are."""
     s = world.scenario
     others = [pts for other in world.scene.robots if other is not robot
               for pts in robot_points(world.nominal, world.belief, other)] + list(extra)
-    rated = problem.field(robot.name, targets, region(world, robot, taken), others,
-                          world.belief.qpos, world.rng, world.timer)
-    if method == "rating" and s.rating.travel_per_m > 0:
-        return travel_weighed(rated, world.belief.qpos[robot.qpos_adr[:2]], s.rating.travel_per_m,
-                              world.arm.reach_m)
-    if method == "biased_random":
-        return biased_random(rated, [target_model(t) for t in targets], problem.camera,
-                             world.rng, s.search.random_max_angle_deg)
-    if method == "information_gain":  # about the primary target, or what is searched for
-        primary = next((t for t in targets if t.role == "primary"), targets[0])
-        interest = region_mask(problem.grid, primary.position, np.array(s.mapping.region_half_m))
-        gains = gain_model(s, problem.grid, world.pinhole, interest)
-        with world.timer("placement"):
-            return information_gain(rated, targets.index(primary), primary.position, gains,
-                                    world.rng, s.search.gain_samples)
-    return rated
+    where = region(world, robot, taken)
+    primary = next((k for k, t in enumerate(targets) if t.role == "primary"), 0)
+
+    def rated() -> RatingField:
+        return problem.field(robot.name, targets, where, others, world.belief.qpos, world.rng,
+                             None)
+
+    def gains() -> GainModel:  # about the primary target, or what is searched for
+        interest = region_mask(problem.grid, targets[primary].position,
+                               np.array(s.mapping.region_half_m))
+        return gain_model(s, problem.grid, world.pinhole, interest)
+
+    given = MethodInput(
+        tuple(target_model(t) for t in targets), primary, problem.camera, problem.grid, where,
+        world.belief.qpos[robot.qpos_adr[:2]].copy(), world.arm.reach_m, world.rng,
+        method_settings(s), rated,
+        lambda positions, aims: problem.rated_at(targets, positions, aims, others), gains)
+    with world.timer("placement"):
+        return method_named(method).choose(given)
+
+
+def method_settings(s: Scenario) -> MethodSettings:
+    """The scenario's settings of the built-in placement methods."""
+    q = s.search
+    return MethodSettings(s.rating.travel_per_m, q.informed_max_angle_deg,
+                          q.biased_random_max_angle_deg, q.gain_samples)
 
 
 def _findable(ranked: RatingField, candidates: np.ndarray, targets: tuple[Target, ...],
@@ -151,8 +151,9 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     start = belief.qpos.copy()
     corridor = carry_corridor(world.nominal, belief, s.task) if s.task.enabled else None
     # the rating function's target is the displacement (sec. 3): its candidates must hold
-    # the insertion site in focus and in frame; the other methods choose as they do
-    corners = None if corridor is None or method != "rating" else site_corners(corridor)
+    # the insertion site in focus and in frame; other methods choose as they do
+    checks = method_named(method)
+    corners = None if corridor is None or not checks.site_in_frame else site_corners(corridor)
     # the bases scan the floor where they stand; the planner knows the clutter as mapped
     # (or, as an oracle, as it is: the scans are then not needed)
     if q.planner_world != "model":
@@ -173,7 +174,8 @@ def place(world: World, problem: RatingProblem, robot: Robot, taken: list[np.nda
     out_of_reach = int((~maybe).sum())
     if out_of_reach:
         farthest = _out_of_reach(ranked, int(order[np.argmax(~maybe)]))
-    findable = _findable(ranked, order[maybe], targets, problem, s.camera.baseline_m)
+    findable = (_findable(ranked, order[maybe], targets, problem, s.camera.baseline_m)
+                if checks.detectable_only else np.ones(len(ranked.ratings.positions), bool))
     for i in order[maybe]:
         if tried >= q.ik_candidates or standless >= MAX_STANDLESS:
             break

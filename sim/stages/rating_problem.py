@@ -8,6 +8,7 @@ search of the map its occluders' hulls. A changed map is a new problem.
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -21,6 +22,7 @@ from placement import (
     SearchSettings,
     TargetModel,
     Weights,
+    rate_positions,
     search,
 )
 from sim.config.scenario import Scenario
@@ -57,17 +59,27 @@ class RatingProblem:
 
     def field(self, robot: str, targets: tuple[Target, ...], region: Region,
               others: list[np.ndarray], planned: np.ndarray, rng: np.random.Generator,
-              timer: Timer) -> RatingField:
+              timer: Timer | None) -> RatingField:
         """The rating field of ``targets`` over ``region`` for ``robot``, the other
         robots' bodies (point sets, m) occluding, with every robot at the joints
         ``planned`` (the belief's qpos). A random strategy searches afresh, drawing from
-        ``rng``; a deterministic one answers a question asked before from memory."""
+        ``rng``; a deterministic one answers a question asked before from memory. Timed as
+        ``placement`` by ``timer``, if given."""
         key = (robot, tuple(t.name for t in targets), region, planned.tobytes())
         found = self._fields.get(key) if self.settings.strategy != "random" else None
         if found is None:
-            with timer("placement"):
+            with timer("placement") if timer is not None else contextlib.nullcontext():
                 found = search(self.grid, [target_model(t) for t in targets], self.camera,
                                self.weights, self.free_threshold, region, self.settings, rng,
                                others, self._hulls)
             self._fields[key] = found
         return found
+
+    def rated_at(self, targets: tuple[Target, ...], positions: np.ndarray, aims: np.ndarray,
+                 others: list[np.ndarray]) -> RatingField:
+        """The rating of camera ``positions`` (n, 3; m), each for its target (``aims``,
+        indices into ``targets``), the other robots' bodies (point sets, m) occluding: for
+        the record of a method that chooses by other means."""
+        return rate_positions(self.grid, [target_model(t) for t in targets], self.camera,
+                              positions, self.grid.probability_at(positions), self.weights,
+                              self.settings, others, self._hulls, aims)
