@@ -34,6 +34,7 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
 import pytest
 from scipy.stats import binomtest, wilcoxon
 
@@ -86,6 +87,24 @@ def test_optimal_placement_places_as_many_seeing_cameras_as_random_at_every_dens
                                                 for x in m["robots"])
     for d in range(3):
         assert seeing[("optimal", d)] >= seeing[("random", d)], dict(seeing)
+
+
+def test_the_cameras_face_the_requested_density(swept):
+    """The density is held from the depth of field's near limit to its far limit: every
+    placed camera, of every method, faces the request within the generator's 2 points
+    at every recorded radius, and the median within 5 points."""
+    sweep = load_sweep(SCENARIO_DIR / "regression.toml")
+    faced: dict[int, list[float]] = defaultdict(list)
+    with Results(swept) as r:
+        for d, *_, record in r.rows("trials"):
+            trial = json.loads(record)
+            request = sweep.config.densities[d]
+            assert all(abs(share - request) <= 0.02 + 1e-9
+                       for _, share in trial["density_by_radius"])
+            faced[d] += [x["faced_density"] for m in trial["methods"] for x in m["robots"]
+                         if x["placed"]]
+    for d, request in enumerate(sweep.config.densities):
+        assert abs(float(np.median(faced[d])) - request) <= 0.05, (request, faced[d])
 
 
 def rate(outcomes, method: str, density: int, tol: float) -> float:
