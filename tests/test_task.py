@@ -15,7 +15,8 @@ from rerun.chunk import RrdReader
 
 from calibration.panel import panel_mask
 from mapping import LyingPose, Pinhole, pose_covariance, voxels_of
-from sim.config.scenario import ObstacleConfig, Scenario, load_scenario
+from sim.config.scenario import Scenario, load_scenario
+from sim.config.scene import ObstacleConfig
 from sim.experiments.soak.audit import audit_run
 from sim.stages.place import REJECTED_RADIUS_M
 from sim.stages.record import Recorder

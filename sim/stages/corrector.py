@@ -24,7 +24,7 @@ from calibration.tracking import (
     TrackerSettings,
 )
 from mapping import OccupancyGrid, Pinhole, mujoco_pose, opencv_pose
-from sim.config.scenario import CorrectionConfig
+from sim.config.stages import CorrectionConfig
 from sim.stages.correction import Correction, UsedFiducial, distrust
 from sim.stages.timer import Timer
 from sim.world.render import Renderer, camera_pose

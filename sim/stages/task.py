@@ -56,7 +56,7 @@ from mapping import (
 )
 from mapping.cad import to_object
 from mapping.stereo import stereo_depth
-from sim.config.scenario import TaskConfig
+from sim.config.stages import TaskConfig
 from sim.screen import Advance
 from sim.stages.record import Recorder
 from sim.stages.relative import (
