@@ -11,6 +11,7 @@ from mapping import BoxModel, OccupancyGrid, SensorModel, move_object
 from placement import Region, TargetModel, clearance_map, expanded_hulls, search, tfv_at
 from placement.occluders import grid_occluders
 from sim.config.scenario import load_scenario
+from sim.stages.panel_model import panel_model
 from sim.stages.rating_problem import RatingProblem
 from sim.stages.site_view import (
     DROP,
@@ -26,7 +27,6 @@ from sim.stages.site_view import (
     site_target,
     worth_the_move,
 )
-from sim.stages.task import panel_model
 from sim.world.scene import build_scene
 
 S = load_scenario()
