@@ -1,8 +1,8 @@
 """Rating natural fiducials (sec. 2.4) with the image and the environment model.
 
-Fiducials are found and followed in the images by calibration/tracking.py; here each is
-rated by the fiducial evaluation function (eq. 8), every term scaled to [0, 1] over the
-candidates:
+Fiducials are found in the images by calibration/stereo_features.py and followed by
+calibration/tracking.py; here each is rated by the fiducial evaluation function (eq. 8),
+every term scaled to [0, 1] over the candidates:
 
 - certainty f = P / r: P the grid's occupancy at the point (the surface voxel: the
   largest P within one voxel), r the radius (voxels, at least 1) out to which the

@@ -26,11 +26,8 @@ from calibration import CalibrationError
 from calibration.pose import DegenerateGeometryError, estimate_pose
 from mapping import MappingError, SensorModel, StereoSettings
 from placement import DetectorLimits, PlacementError
-from sim.config.scenario import (
-    ObstacleConfig,
-    load_scenario,
-    parse_scenario,
-)
+from sim.config.scenario import load_scenario, parse_scenario
+from sim.config.scene import ObstacleConfig
 from sim.config.schema import ScenarioError
 from sim.config.sweep import GENERATED, load_sweep
 from sim.experiments.results import Results, ResultsError

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from calibration import detect_holes, disk_template, locate_hole, log_response, to_gray
 from calibration.target_frame import projected_disk
 from mapping import Pinhole, opencv_pose, world_to_camera
-from sim.config.scenario import TargetConfig, load_scenario
+from sim.config.scenario import load_scenario
+from sim.config.scene import TargetConfig
 from sim.config.schema import ScenarioError
 from sim.world.ik import solve_camera_pose
 from sim.world.render import Renderer, camera_pinhole, camera_pose

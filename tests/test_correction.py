@@ -14,7 +14,9 @@ import pytest
 from rerun.chunk import RrdReader
 
 from calibration.pose import rotation_deg
-from calibration.tracking import FeatureFinder, Frame, TrackerSettings
+from calibration.stereo_features import FeatureFinder
+from calibration.tracker_settings import TrackerSettings
+from calibration.tracking import Frame
 from sim.config.scenario import load_scenario
 from sim.stages.corrector import PoseCorrector
 from sim.stages.placement_result import pose_error

@@ -13,14 +13,9 @@ from typing import Any
 
 import pytest
 
-from sim.config.scenario import (
-    SCENARIO_DIR,
-    SENSOR_DEFAULTS,
-    Scenario,
-    load_scenario,
-    parse_scenario,
-)
+from sim.config.scenario import SCENARIO_DIR, Scenario, load_scenario, parse_scenario
 from sim.config.schema import convert
+from sim.config.stages import SENSOR_DEFAULTS
 from sim.config.sweep import is_sweep_file, load_sweep
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -19,7 +19,8 @@ from placement.density import (
     occlusion_density,
     ray_hits,
 )
-from sim.config.scenario import ObstacleConfig, load_scenario
+from sim.config.scenario import load_scenario
+from sim.config.scene import ObstacleConfig
 from sim.experiments.clutter_room import Boxes, ClutterRoom
 from sim.experiments.generate import (
     TOLERANCE,

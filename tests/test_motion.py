@@ -11,7 +11,8 @@ import pytest
 from rerun.chunk import RrdReader
 from scipy.spatial.transform import Rotation
 
-from sim.config.scenario import MotionConfig, load_scenario, parse_scenario
+from sim.config.scenario import load_scenario, parse_scenario
+from sim.config.stages import MotionConfig
 from sim.stages.scene_record import SceneGeometry, body_path, geom_path
 from sim.world.motion import ARM_MOUNT, ErrorModel, MoveError, Mover
 from sim.world.planning import ArmPlanner

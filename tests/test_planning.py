@@ -172,7 +172,7 @@ def test_a_robot_keeps_out_of_the_insertion_corridor():
 
 
 def test_the_corridor_holds_the_panel_where_it_lies_above_its_slot_and_in_it():
-    from sim.config.scenario import TaskConfig
+    from sim.config.stages import TaskConfig
     from sim.stages.corridor import carry_corridor
 
     scene = build_scene(parse_scenario({}))

@@ -35,7 +35,8 @@ from calibration.edge_model import (
     visible_samples,
 )
 from mapping import opencv_pose
-from sim.config.scenario import ObstacleConfig, load_scenario
+from sim.config.scenario import load_scenario
+from sim.config.scene import ObstacleConfig
 from sim.config.schema import ScenarioError
 from sim.stages.relative import (
     GATE_CHI2,

@@ -10,19 +10,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from sim.cli import main
-from sim.config.scenario import (
-    DEFAULT_SCENARIO,
-    BasePose,
-    CameraConfig,
-    MappingConfig,
-    ObstacleConfig,
-    Scenario,
-    TargetConfig,
-    WorkpieceConfig,
-    load_scenario,
-    parse_scenario,
-)
+from sim.config.scenario import DEFAULT_SCENARIO, Scenario, load_scenario, parse_scenario
+from sim.config.scene import BasePose, CameraConfig, ObstacleConfig, TargetConfig, WorkpieceConfig
 from sim.config.schema import ScenarioError
+from sim.config.stages import MappingConfig
 from sim.config.sweep import MethodConfig, Sweep, SweepConfig
 
 

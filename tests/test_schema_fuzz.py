@@ -19,12 +19,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from input_errors import assert_one_line_error, cli
 
-from sim.config.scenario import (
-    ObstacleConfig,
-    Scenario,
-    load_scenario,
-    parse_scenario,
-)
+from sim.config.scenario import Scenario, load_scenario, parse_scenario
+from sim.config.scene import ObstacleConfig
 from sim.config.schema import ScenarioError, build, convert
 from sim.config.sweep import GENERATED, SweepConfig, load_sweep
 

@@ -11,22 +11,19 @@ from mapping import BoxModel, OccupancyGrid, SensorModel, move_object
 from placement import Region, TargetModel, clearance_map, expanded_hulls, search, tfv_at
 from placement.occluders import grid_occluders
 from sim.config.scenario import load_scenario
+from sim.stages.panel_model import panel_model
 from sim.stages.rating_problem import RatingProblem
-from sim.stages.site_view import (
+from sim.stages.replacement_rule import (
     DROP,
     HOLD,
-    MAX_LIFT_M,
     MOVE_GAIN,
     RECOVER,
     ReplacementTrigger,
-    SiteCache,
-    box_corners,
     required_rating,
-    site_rating,
-    site_target,
     worth_the_move,
 )
-from sim.stages.task import panel_model
+from sim.stages.site_occluders import SiteCache
+from sim.stages.site_view import MAX_LIFT_M, box_corners, site_rating, site_target
 from sim.world.scene import build_scene
 
 S = load_scenario()

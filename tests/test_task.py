@@ -15,12 +15,15 @@ from rerun.chunk import RrdReader
 
 from calibration.panel import panel_mask
 from mapping import LyingPose, Pinhole, pose_covariance, voxels_of
-from sim.config.scenario import ObstacleConfig, Scenario, load_scenario
+from sim.config.scenario import Scenario, load_scenario
+from sim.config.scene import ObstacleConfig
 from sim.experiments.soak.audit import audit_run
+from sim.stages.panel_model import panel_model
 from sim.stages.place import REJECTED_RADIUS_M
 from sim.stages.record import Recorder
 from sim.stages.relative import SlotBelief
-from sim.stages.task import STILL_MISSES, InsertionTask, Replacement, panel_model
+from sim.stages.replacement import Replacement
+from sim.stages.task import STILL_MISSES, InsertionTask
 from sim.stages.task_images import BLUR_MARGIN_PX, MIN_POINTS, stereo_window
 from sim.stages.task_result import Camera, TaskResult
 from sim.stages.world import new_grid

@@ -14,18 +14,15 @@ from scipy.spatial.transform import Rotation
 from calibration.ekf import StereoCamera
 from calibration.flow import flow_disparities, nearest_disparity
 from calibration.pose import invert
+from calibration.stereo_features import FeatureFinder, StereoFeatures, row_disparities, spread
+from calibration.tracker_settings import TrackerSettings
 from calibration.tracking import (
     SCALE,
     SCALE_KEPT,
     TURN_DEG,
     TURN_KEPT,
-    FeatureFinder,
     FiducialTracker,
-    StereoFeatures,
-    TrackerSettings,
     predicted_overlap,
-    row_disparities,
-    spread,
 )
 
 CAMERA = StereoCamera(400.0, 400.0, 320.0, 240.0, 0.12)

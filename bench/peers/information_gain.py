@@ -18,7 +18,8 @@ import statistics
 import time
 
 from bench.common import print_table, write_results
-from sim.config.scenario import ViewGain, ViewStrategy, load_scenario
+from sim.config.scenario import load_scenario
+from sim.config.stages import ViewGain, ViewStrategy
 from sim.stages.episode import Episode
 from sim.world.render import Renderer
 

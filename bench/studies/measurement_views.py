@@ -33,7 +33,8 @@ from bench.common import SCENARIOS
 from bench.studies.detector_views import look_rotation, put_camera
 from calibration.target_frame import common_frame, in_measured_frame, sight
 from mapping import opencv_pose
-from sim.config.scenario import ObstacleConfig, Scenario
+from sim.config.scenario import Scenario
+from sim.config.scene import ObstacleConfig
 from sim.config.sweep import load_sweep
 from sim.stages.look import target_sd
 from sim.stages.record import Recorder

@@ -69,14 +69,15 @@ def akaze(threshold: float = 1e-5, most_bits: float = 120.0) -> Iterator[None]:
     threshold of 1e-5 finds about as many keypoints as SIFT at the tracker's contrast
     (2800-4400 an image); the 486-bit descriptors are compared by Hamming distance, and
     one further than a quarter of their bits (120) matches nothing."""
-    import calibration.tracking as tracking
+    import calibration.stereo_features as stereo_features
 
     contrib = getattr(cv2, "xfeatures2d", None)
     if contrib is None:
         raise SystemExit("bench.studies.pose_correction: --variants akaze needs OpenCV's "
                          "contrib modules (see the akaze() docstring)")
-    init, keypoints = tracking.FeatureFinder.__init__, tracking.FeatureFinder.keypoints
-    limit = tracking.DESCRIPTOR_MAX["orb"]  # byte descriptors are looked up as ORB's
+    init = stereo_features.FeatureFinder.__init__
+    keypoints = stereo_features.FeatureFinder.keypoints
+    limit = stereo_features.DESCRIPTOR_MAX["orb"]  # byte descriptors are looked up as ORB's
 
     def akaze_init(self: Any, settings: Any) -> None:
         init(self, settings)
@@ -88,20 +89,20 @@ def akaze(threshold: float = 1e-5, most_bits: float = 120.0) -> Iterator[None]:
         every, descriptors = self.detector.detectAndCompute(gray, mask)
         if descriptors is None or not every:
             return np.zeros((0, 2)), None
-        keep = tracking.spread(np.array([k.response for k in every]),
-                               np.array([k.pt for k in every]), gray.shape[::-1],
-                               self.settings.features, expected)
+        keep = stereo_features.spread(np.array([k.response for k in every]),
+                                      np.array([k.pt for k in every]), gray.shape[::-1],
+                                      self.settings.features, expected)
         return np.array([every[i].pt for i in keep], float).reshape(-1, 2), descriptors[keep]
 
-    tracking.FeatureFinder.__init__ = akaze_init  # type: ignore[method-assign]
-    tracking.FeatureFinder.keypoints = akaze_keypoints  # type: ignore[method-assign]
-    tracking.DESCRIPTOR_MAX["orb"] = most_bits
+    stereo_features.FeatureFinder.__init__ = akaze_init  # type: ignore[method-assign]
+    stereo_features.FeatureFinder.keypoints = akaze_keypoints  # type: ignore[method-assign]
+    stereo_features.DESCRIPTOR_MAX["orb"] = most_bits
     try:
         yield
     finally:
-        tracking.FeatureFinder.__init__ = init  # type: ignore[method-assign]
-        tracking.FeatureFinder.keypoints = keypoints  # type: ignore[method-assign]
-        tracking.DESCRIPTOR_MAX["orb"] = limit
+        stereo_features.FeatureFinder.__init__ = init  # type: ignore[method-assign]
+        stereo_features.FeatureFinder.keypoints = keypoints  # type: ignore[method-assign]
+        stereo_features.DESCRIPTOR_MAX["orb"] = limit
 
 
 def one_seed(job: tuple[str, int]) -> list[dict[str, Any]]:

@@ -32,13 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.config.scenario import (
-    SCENARIO_DIR,
-    Scenario,
-    check_placement_method,
-    parse_scenario,
-    scenario_table,
-)
+from sim.config.scenario import SCENARIO_DIR, Scenario, parse_scenario, scenario_table
 from sim.config.schema import (
     Checked,
     ScenarioError,
@@ -46,6 +40,7 @@ from sim.config.schema import (
     checked,
     merged_tables,
 )
+from sim.config.stages import check_placement_method
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,8 @@ from placement.density import (
     elevation_bands,
     ray_entry,
 )
-from sim.config.scenario import ObstacleConfig, Scenario
+from sim.config.scenario import Scenario
+from sim.config.scene import ObstacleConfig
 from sim.experiments.clutter_room import (
     HOLE_MARGIN_M,
     ROBOT_ROOM_M,

@@ -15,16 +15,12 @@ import numpy as np
 from calibration.ekf import FiducialFilter, StereoCamera
 from calibration.fiducials import Candidate, certainty, depth_contrast, pick, rate, visual_contrast
 from calibration.pose import METHODS, DegenerateGeometryError, estimate_pose, invert, rotation_deg
+from calibration.stereo_features import FeatureFinder, StereoFeatures
 from calibration.targets import to_gray
-from calibration.tracking import (
-    FeatureFinder,
-    FiducialTracker,
-    Frame,
-    StereoFeatures,
-    TrackerSettings,
-)
+from calibration.tracker_settings import TrackerSettings
+from calibration.tracking import FiducialTracker, Frame
 from mapping import OccupancyGrid, Pinhole, mujoco_pose, opencv_pose
-from sim.config.scenario import CorrectionConfig
+from sim.config.stages import CorrectionConfig
 from sim.stages.correction import Correction, UsedFiducial, distrust
 from sim.stages.timer import Timer
 from sim.world.render import Renderer, camera_pose

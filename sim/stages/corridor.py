@@ -15,7 +15,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from sim.config.scenario import TaskConfig
+from sim.config.stages import TaskConfig
 from sim.world.collision import KeepOutBoxes
 
 CARRY_SAMPLES = 11  # boxes along the carry (as many as the task's open-loop carry steps)

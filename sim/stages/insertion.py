@@ -14,6 +14,7 @@ import numpy as np
 from calibration.target_frame import Sighting, in_measured_frame
 from mapping import LyingPose, Target, lying_pose
 from sim.stages.corrector import PoseCorrector
+from sim.stages.panel_model import panel_model
 from sim.stages.place import place, ranked_field
 from sim.stages.placement_result import Placement
 from sim.stages.rating_problem import RatingProblem
@@ -25,9 +26,10 @@ from sim.stages.relative import (
     slot_outer_half_width,
     stand_in,
 )
+from sim.stages.replacement import Replacement
 from sim.stages.site_view import SITE, SiteWatch, box_corners
 from sim.stages.slot_target import nominal_panel, nominal_slot, stereo_rig
-from sim.stages.task import InsertionTask, Replacement, panel_model
+from sim.stages.task import InsertionTask
 from sim.stages.task_result import Camera, TaskResult
 from sim.stages.world import World
 from sim.world.optics import Lens

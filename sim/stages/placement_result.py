@@ -21,7 +21,7 @@ from sim.stages.correction import Correction
 from sim.stages.task_result import Camera
 from sim.world.ik import IKResult
 from sim.world.motion import MotionResult
-from sim.world.planning import Plan
+from sim.world.plan import Plan
 from sim.world.scene import Robot
 
 

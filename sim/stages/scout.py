@@ -25,7 +25,8 @@ from sim.stages.move import move
 from sim.stages.world import World
 from sim.world.base_scanner import scan_into
 from sim.world.ik import solve_camera_pose
-from sim.world.planning import ArmPlanner, Plan
+from sim.world.plan import Plan
+from sim.world.planning import ArmPlanner
 from sim.world.render import camera_pose
 from sim.world.scene import Robot
 from sim.world.sensing import DepthSensor

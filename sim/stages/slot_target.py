@@ -21,6 +21,7 @@ from calibration.edge_fit import fit_edges
 from calibration.edge_model import Boxes, Seen, StereoRig
 from calibration.target_frame import Sighting
 from mapping import Target, opencv_pose
+from sim.stages.panel_model import panel_model
 from sim.stages.relative import (
     SlotBelief,
     slot_half_width,
@@ -29,7 +30,6 @@ from sim.stages.relative import (
     slot_start_in,
 )
 from sim.stages.site_view import box_corners, site_target
-from sim.stages.task import panel_model
 from sim.stages.task_result import Camera
 from sim.stages.world import World
 from sim.world.optics import Lens

@@ -34,8 +34,6 @@ primary target) the task is not attempted and fails every tolerance.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -45,7 +43,6 @@ from calibration.displacement import largest_sd, prediction_start, stop_reason
 from calibration.edge_model import Boxes, StereoRig
 from calibration.panel import window
 from mapping import (
-    BoxModel,
     LyingPose,
     OccupancyGrid,
     Pinhole,
@@ -56,8 +53,9 @@ from mapping import (
 )
 from mapping.cad import to_object
 from mapping.stereo import stereo_depth
-from sim.config.scenario import TaskConfig
+from sim.config.stages import TaskConfig
 from sim.screen import Advance
+from sim.stages.panel_model import panel_model
 from sim.stages.record import Recorder
 from sim.stages.relative import (
     Measurement,
@@ -67,6 +65,7 @@ from sim.stages.relative import (
     StandIn,
     slot_model,
 )
+from sim.stages.replacement import Replace
 from sim.stages.site_view import SiteWatch
 from sim.stages.task_images import MIN_POINTS, SETTINGS, StereoPair, TaskImages
 from sim.stages.task_result import Camera, TaskResult
@@ -108,31 +107,8 @@ def execution_sd(cfg: TaskConfig, length_m: float) -> float:
 ABSOLUTE_SD = (0.01, math.radians(2.0))
 
 
-def panel_model(model: mujoco.MjModel) -> BoxModel:
-    """The panel's CAD model (its box geoms, in its body frame)."""
-    body = model.body("panel/panel").id
-    geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body
-             and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
-    return BoxModel(model.geom_pos[geoms].copy(), model.geom_size[geoms].copy())
-
-
 def _unseen(done: float) -> None:
     """A step nobody is shown."""
-
-
-@dataclass(frozen=True)
-class Replacement:
-    """A camera's re-placement during the task: its record in ``replacements``, and the
-    camera as the task now knows it (None: it could not be placed again)."""
-
-    record: dict[str, Any]
-    camera: Camera | None
-
-
-# Given a camera to place again, the step, why, its site rating now (None: it lost the
-# panel, any view is better) and the panel's believed pose: its re-placement, or None if
-# cameras are not re-placed.
-Replace = Callable[[Camera, int, str, float | None, np.ndarray], Replacement | None]
 
 
 class InsertionTask(TaskImages):

@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim.config.scenario import MotionConfig
+from sim.config.stages import MotionConfig
 from sim.world.collision import Clearance, Proximity
 from sim.world.scene import ROBOT_JOINTS, Robot
 from sim.world.timing import ROBOT_LIMITS, time_path

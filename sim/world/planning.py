@@ -24,7 +24,6 @@ import hashlib
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import mujoco
@@ -37,6 +36,7 @@ from sim.world.collision import KeepOutBoxes, Proximity
 from sim.world.ik import IKResult, IKSettings, solve_camera_pose
 from sim.world.mapped_obstacles import MapFields, left_to_map, map_fields, robot_spheres
 from sim.world.motion import dense_path
+from sim.world.plan import Plan
 from sim.world.rrt import rrt_connect
 from sim.world.scene import Robot, Scene
 from sim.world.standing import STAND_CELL_M, Places, Stands, clear_places, ranked_stands
@@ -63,33 +63,6 @@ ARM_SWING_RAD = math.pi / 2  # see ArmPlanner._bounds
 # enough that a blocked one wastes few checks (its default, a fifth of the space's
 # extent, is several metres and radians here)
 STEP_RANGE = 1.0
-
-
-@dataclass(frozen=True)
-class Plan:
-    """A goal configuration and the joint path there, or why there is none: ``reason``
-    is None (it may be taken), "no place to stand" (no clear place the base gets to
-    from which the arm reaches the pose), "no goal configuration" (no IK solution that
-    keeps the clearance), "no path within the budget" or "no path within the drive"
-    (the path found drives the base farther than the planner's limit)."""
-
-    ik: IKResult | None  # the goal's IK solution (or the best attempt; None: none tried)
-    reason: str | None
-    path: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))  # (k, 9) joints
-    checks: int = 0  # validity checks spent
-    seconds: float = 0.0  # wall clock of goal and path
-
-    def summary(self) -> dict[str, Any]:
-        """The path's waypoints, base and arm lengths, and what planning cost."""
-        out: dict[str, Any] = {"reason": self.reason, "validity_checks": self.checks,
-                               "time_s": round(self.seconds, 4)}
-        if len(self.path):
-            steps = np.diff(self.path, axis=0)
-            out |= {"waypoints": len(self.path),
-                    "base_path_m": round(float(np.linalg.norm(steps[:, :2], axis=1).sum()), 4),
-                    "base_turn_rad": round(float(np.abs(steps[:, 2]).sum()), 4),
-                    "arm_path_rad": round(float(np.linalg.norm(steps[:, 3:], axis=1).sum()), 4)}
-        return out
 
 
 class ArmPlanner:

@@ -10,7 +10,8 @@ import mujoco
 import numpy as np
 
 from mapping import Target
-from sim.config.scenario import Scenario, TargetConfig
+from sim.config.scenario import Scenario
+from sim.config.scene import TargetConfig
 from sim.config.schema import ScenarioError
 from sim.world.robot_model import camera_robot
 from sim.world.textures import as_files, link_files, paint

@@ -1,4 +1,4 @@
-"""Random scenarios over the scenario schema (sim/config/scenario.py), for the soak of
+"""Random scenarios over the scenario schema (sim/config/), for the soak of
 unfamiliar scenes (sim/experiments/soak/scenes.py, bench/studies/soak.py, tests/test_soak.py).
 
 A draw is a TOML table a user could have written: 1 to 4 robots with bases near and
