@@ -8,8 +8,9 @@ its slot, and success is judged from where it really ends (docs/task.md).
    panel and the slot (sim/stages/task_images.py). ``measurement = "relative"``: the
    panel's and the slot's CAD models are fitted to the edges of its own pair, and the
    displacement taken between them in its frame (sim/stages/relative.py); cameras are
-   fused by inverse covariance. ``"absolute"``: stereo points of the panel, through the
-   camera's pose, fitted with its CAD model (all cameras together, else the best alone),
+   fused by inverse covariance. ``"absolute"`` (sim/stages/absolute_panel.py): stereo
+   points of the panel, through the camera's pose, fitted with its CAD model (all
+   cameras together, else the best alone),
    minus the slot where the holes' frame puts it; the relative measurement also uses it
    once to find the panel after the carry. A step no camera measures is a failed
    measurement: the panel waits, nothing is guessed.
@@ -41,20 +42,16 @@ import numpy as np
 
 from calibration.displacement import largest_sd, prediction_start, stop_reason
 from calibration.edge_model import Boxes, StereoRig
-from calibration.panel import window
 from mapping import (
     LyingPose,
     OccupancyGrid,
     Pinhole,
-    fit_model,
     move_object,
-    opencv_pose,
     support_layer,
 )
-from mapping.cad import to_object
-from mapping.stereo import stereo_depth
 from sim.config.stages import TaskConfig
 from sim.screen import Advance
+from sim.stages.absolute_panel import AbsolutePanel
 from sim.stages.panel_model import panel_model
 from sim.stages.record import Recorder
 from sim.stages.relative import (
@@ -67,23 +64,12 @@ from sim.stages.relative import (
 )
 from sim.stages.replacement import Replace
 from sim.stages.site_view import SiteWatch
-from sim.stages.task_images import MIN_POINTS, SETTINGS, StereoPair, TaskImages
+from sim.stages.task_images import StereoPair, TaskImages
 from sim.stages.task_result import Camera, TaskResult
 from sim.world.optics import Lens
 from sim.world.render import Renderer
 from sim.world.scene import Scene
 
-# A fit is good when half the points are this close to it and this many within 1 cm,
-# for the default camera (640 x 480, 60 deg: fx 416 px); stereo depth noise, and so the
-# first bound, grows as 1 / fx for smaller images.
-MAX_FIT_MEDIAN_M = 0.004
-MIN_ON_MODEL = 0.6
-# A fit this many times that far off after its coarse stage is not refined: in six scenes
-# the 260 good fits of 324 were at most 7.7 mm off after it, and no finer stage turned
-# a fit from 16 mm to good (docs/benchmarks.md).
-GIVE_UP_FACTOR = 4.0
-REFERENCE_FX_PX = 415.7
-MAX_POINTS_PER_CAMERA = 3000
 STEP_S = 1.0  # simulated time per steering step, for the recording
 OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)
 # A camera's misses while the panel stands still (no step measured it in between): the
@@ -124,13 +110,13 @@ class InsertionTask(TaskImages):
                          StereoRig(pinhole.width, pinhole.height, pinhole.fx, pinhole.fy,
                                    pinhole.cx, pinhole.cy, baseline_m, lens.blur_sd_px))
         self.world, self.baseline_m, self.grid, self.cfg = world, baseline_m, grid, cfg
-        self.noise_scale = max(1.0, REFERENCE_FX_PX / pinhole.fx)
         self.rng, self.recorder = rng, recorder
         self.on_step: Advance = _unseen  # told each step as it starts (a live meter)
         self.model = panel_model(m)  # the CAD model: the nominal one
         self.mocap = int(m.body_mocapid[m.body("panel/panel").id])
         self.slot_site = m.site("workpiece/slot").id
         self.panel_boxes = Boxes(self.model.centres, self.model.halves)
+        self.absolute = AbsolutePanel(self, self.model, baseline_m, cfg.stereo_margin_px, rng)
         self.slot_boxes = slot_model(m)
         self._last_pairs: dict[str, StereoPair | str] = {}  # this step's, for the recording
 
@@ -155,63 +141,10 @@ class InsertionTask(TaskImages):
 
     def measure(self, cameras: list[Camera], guess: np.ndarray
                 ) -> tuple[np.ndarray | None, dict[str, str]]:
-        """The panel's pose fitted to what the cameras see (None if they cannot), and why
-        each camera that contributed nothing failed. The points of every camera whose pose
-        is trusted (corrected, or as commanded with correction off) are fitted together
-        (all cameras' if none is); if the CAD model fits them poorly, each camera's alone
-        (trusted ones first, then most points first), and the first good fit is taken:
-        one poor view, or one uncorrected pose, does not spoil another."""
-        seen: dict[str, np.ndarray] = {}
-        eyes: dict[str, np.ndarray] = {}
-        why: dict[str, str] = {}
-        for cam in cameras:
-            found = self._panel_points(cam)
-            if isinstance(found, str):
-                why[cam.robot.name] = found
-            else:
-                seen[cam.robot.name] = found
-                eyes[cam.robot.name] = np.repeat(cam.believed[None, :3, 3], len(found), axis=0)
-        trusted = {c.robot.name for c in cameras if c.trusted}
-        together = [n for n in seen if n in trusted] or list(seen)
-        alone = [n for n in sorted(seen, key=lambda n: (n not in trusted, -len(seen[n])))
-                 if [n] != together]
-        failure = "too few panel points"
-        limit = MAX_FIT_MEDIAN_M * self.noise_scale
-        for names in [together, *[[n] for n in alone]]:
-            cloud = np.concatenate([seen[n] for n in names]) if names else np.zeros((0, 3))
-            if len(cloud) < MIN_POINTS:
-                continue
-            pose, _ = fit_model(self.model, cloud, guess, np.concatenate([eyes[n] for n in names]),
-                                give_up_median_m=GIVE_UP_FACTOR * limit)
-            off = np.abs(self.model.distance(to_object(pose, cloud)))
-            typical, on = float(np.median(off)), float(np.mean(off < 0.01))
-            if typical <= limit and on >= MIN_ON_MODEL:
-                for n in seen.keys() - set(names):
-                    if n in trusted or names != together:  # not merely left out, uncorrected
-                        why[n] = "its points disagree with the other camera's and the CAD model"
-                return pose, why
-            failure = (f"the CAD model fits the points to {typical * 1e3:.1f} mm (median), "
-                       f"{on:.0%} within 1 cm")
-        return None, {**why, "fit": failure} if seen else why or {"all": failure}
-
-    def _panel_points(self, cam: Camera) -> np.ndarray | str:
-        """World points of the panel in one camera's view, or why there are none."""
-        pair = self.stereo_pair(cam.robot.camera, cam.robot.right_camera)
-        if isinstance(pair, str):
-            return pair
-        depth = stereo_depth(pair.left, pair.right, self.pinhole, self.baseline_m, SETTINGS,
-                             window(pair.near, self.cfg.stereo_margin_px))
-        v, u = np.nonzero(pair.mask & np.isfinite(depth))
-        if len(v) < MIN_POINTS // 2:
-            return "no stereo depth on the panel"
-        if len(v) > MAX_POINTS_PER_CAMERA:
-            keep = self.rng.choice(len(v), MAX_POINTS_PER_CAMERA, replace=False)
-            v, u = v[keep], u[keep]
-        z = depth[v, u].astype(float)
-        p = self.pinhole
-        in_cam = np.column_stack([(u - p.cx) * z / p.fx, (v - p.cy) * z / p.fy, z])
-        T = opencv_pose(cam.believed)
-        return in_cam @ T[:3, :3].T + T[:3, 3]
+        """The absolute measurement (:class:`AbsolutePanel`): the panel's pose fitted to
+        what the cameras see (None if they cannot), and why each camera that contributed
+        nothing failed."""
+        return self.absolute.measure(cameras, guess)
 
     def _relocate(self, cameras: list[Camera], belief: PanelBelief) -> str | None:
         """Where the relative measurement's fits start when the belief is coarse (after
