@@ -34,6 +34,14 @@ from sim.world.arm import Arm, scene_arm
 from sim.world.base_scanner import SCAN_HEIGHT_M
 from sim.world.collision import KeepOutBoxes, Proximity
 from sim.world.ik import IKResult, IKSettings, solve_camera_pose
+from sim.world.joint_space import (
+    CHECK_STEP,
+    STEP_RANGE,
+    near_angle,
+    nearest_turns,
+    search_box,
+    segment_clear,
+)
 from sim.world.mapped_obstacles import MapFields, left_to_map, map_fields, robot_spheres
 from sim.world.motion import dense_path
 from sim.world.plan import Plan
@@ -44,7 +52,6 @@ from sim.world.standing import STAND_CELL_M, Places, Stands, clear_places, ranke
 # The goal's IK from a stand of the capability map: the base stays about where the seed
 # put it (its posture costs 100 times the arm's) and the arm reaches
 GOAL_IK = IKSettings(base_posture_cost=0.1)
-CHECK_STEP = 0.01  # m (base) or rad (joints): motions are checked at least this finely
 # At most this many stands of the capability map are solved from (the nearest drives
 # first), this far apart (m): an IK solve costs 5-50 ms, and the map's seed already
 # holds the pose to within a cell (4 cm, 10 deg), so a pose that does not converge from
@@ -58,11 +65,6 @@ HERE_SEEDS = 2
 # How far a base may drive to a view by default (m, along its way): it may cross the
 # room it has mapped, the default grid's 3 m square walked round half its edge (6 m)
 DRIVE_M = 6.0
-ARM_SWING_RAD = math.pi / 2  # see ArmPlanner._bounds
-# RRT-Connect's longest step (joint space, m and rad): a tree grows in steps short
-# enough that a blocked one wastes few checks (its default, a fifth of the space's
-# extent, is several metres and radians here)
-STEP_RANGE = 1.0
 
 
 class ArmPlanner:
@@ -231,7 +233,7 @@ class ArmPlanner:
                 if any(np.hypot(*(xy - t)) < SEED_APART_M for t in taken):
                     continue
                 seed = start.copy()
-                seed[robot.qpos_adr] = (*xy, _near_angle(float(yaw), start[robot.qpos_adr[2]]),
+                seed[robot.qpos_adr] = (*xy, near_angle(float(yaw), start[robot.qpos_adr[2]]),
                                         *joints)
                 if self._valid(robot, seed[robot.qpos_adr], self.clearance_m):
                     seeds.append(seed)
@@ -286,10 +288,11 @@ class ArmPlanner:
         and arm together."""
         spent = [0]
         valid = self._validity(robot, self.clearance_m)
-        if self._segment_clear(valid, start, goal, spent):
+        if segment_clear(valid, start, goal, spent):
             return np.array([start, goal]), spent[0]
         if self.move_base:
-            home = self._nearest_turns(robot, self.scene.start_qpos[robot.qpos_adr], start)
+            home = nearest_turns(self.scene.model, robot,
+                                 self.scene.start_qpos[robot.qpos_adr], start)
             tucked_here, tucked_there = start.copy(), goal.copy()
             tucked_here[3:], tucked_there[3:] = home[3:], home[3:]
             legs = []
@@ -298,7 +301,7 @@ class ArmPlanner:
                 for a, b, joints in ((start, tucked_here, arm),
                                      (tucked_here, tucked_there, base),
                                      (tucked_there, goal, arm)):
-                    leg = (np.array([a, b]) if self._segment_clear(valid, a, b, spent)
+                    leg = (np.array([a, b]) if segment_clear(valid, a, b, spent)
                            else self._search(valid, robot, a, b, joints, spent))
                     if leg is None:
                         break
@@ -309,47 +312,15 @@ class ArmPlanner:
                              else list(range(3, 9)), spent)
         return found, spent[0]
 
-    @staticmethod
-    def _segment_clear(valid: Callable[[np.ndarray], bool], a: np.ndarray, b: np.ndarray,
-                       spent: list[int]) -> bool:
-        """Is the straight joint-space segment from ``a`` (clear) to ``b`` clear by
-        ``valid``, checked every CHECK_STEP? Counts its checks in ``spent``."""
-        n = max(1, math.ceil(float(np.linalg.norm(b - a)) / CHECK_STEP))
-        for k in range(1, n + 1):
-            spent[0] += 1
-            if not valid(a + (b - a) * (k / n)):
-                return False
-        return True
-
     def _search(self, valid: Callable[[np.ndarray], bool], robot: Robot, start: np.ndarray,
                 goal: np.ndarray, active: list[int], spent: list[int]) -> np.ndarray | None:
         """RRT-Connect (sim/world/rrt.py) from ``start`` to ``goal`` (9 joints each) over
         the joints ``active`` (the others held as at ``start``), on which ``valid`` holds,
         until ``spent`` reaches the budget; the path found or None."""
-        lo, hi = self._bounds(robot, start, goal)
+        places = self.places(robot).xy if self.move_base else np.zeros((0, 2))
+        lo, hi = search_box(self.scene.model, robot, places, start, goal)
         return rrt_connect(valid, start, goal, active, lo, hi, self.rng, spent, self.checks,
                            CHECK_STEP, STEP_RANGE)
-
-    def _bounds(self, robot: Robot, start: np.ndarray, goal: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-        """The joint space searched (9 each): the box round the places the base can get
-        to (a cell beyond), a quarter turn beyond where its yaw starts and ends, the arm's
-        joints ARM_SWING_RAD beyond where they start and end (within their ranges)."""
-        m = self.scene.model
-        q0, q1 = start, goal
-        ids = [m.jnt_qposadr.tolist().index(a) for a in robot.qpos_adr]
-        lo, hi = m.jnt_range[ids, 0].copy(), m.jnt_range[ids, 1].copy()
-        xy = self.places(robot).xy if self.move_base else np.zeros((0, 2))
-        xy = np.vstack([xy, q0[None, :2]])
-        lo[:2], hi[:2] = xy.min(axis=0) - STAND_CELL_M, xy.max(axis=0) + STAND_CELL_M
-        lo[2] = min(q0[2], q1[2]) - math.pi / 2
-        hi[2] = max(q0[2], q1[2]) + math.pi / 2
-        # the arm's joints within a quarter turn beyond where they start and end: a
-        # camera move needs no more, and the search does not wander through whole turns
-        lo[3:] = np.maximum(lo[3:], np.minimum(q0[3:], q1[3:]) - ARM_SWING_RAD)
-        hi[3:] = np.minimum(hi[3:], np.maximum(q0[3:], q1[3:]) + ARM_SWING_RAD)
-        lo, hi = np.minimum(lo, np.minimum(q0, q1)), np.maximum(hi, np.maximum(q0, q1))
-        return lo, hi
 
     # ------------------------------------------------------------ both
 
@@ -361,8 +332,8 @@ class ArmPlanner:
         if ik is None or why is not None:
             return Plan(ik, why, seconds=time.perf_counter() - started)
         goal = ik.qpos.copy()  # the same pose, each turning joint the shorter way round
-        goal[robot.qpos_adr] = self._nearest_turns(robot, goal[robot.qpos_adr],
-                                                   start[robot.qpos_adr])
+        goal[robot.qpos_adr] = nearest_turns(self.scene.model, robot, goal[robot.qpos_adr],
+                                             start[robot.qpos_adr])
         ik = dataclasses.replace(ik, qpos=goal)
         path, checks = self.path(robot, start[robot.qpos_adr], goal[robot.qpos_adr])
         self._scratch.qpos[:] = start
@@ -389,7 +360,8 @@ class ArmPlanner:
         joints)."""
         started = time.perf_counter()
         start = self.belief.qpos[robot.qpos_adr].copy()
-        home = self._nearest_turns(robot, self.scene.start_qpos[robot.qpos_adr], start)
+        home = nearest_turns(self.scene.model, robot, self.scene.start_qpos[robot.qpos_adr],
+                             start)
         for turn in np.arange(4) * math.pi / 2:
             goal = np.array([*xy, start[2] + turn, *home[3:]])
             if self._valid(robot, goal, self.clearance_m):
@@ -404,23 +376,6 @@ class ArmPlanner:
         full[robot.qpos_adr] = goal
         self.scene.set_robot(self.belief, robot, full)
         return Plan(None, None, path, checks, time.perf_counter() - started)
-
-    def _nearest_turns(self, robot: Robot, joints: np.ndarray, near: np.ndarray) -> np.ndarray:
-        """``joints`` (9) with each turning joint (the yaw, the arm's) moved by whole
-        turns, within its range, to lie nearest ``near`` (9): the same pose, reached
-        without turning a joint the long way round (mapping's IK may leave a joint a
-        whole turn from home)."""
-        m = self.scene.model
-        out = joints.copy()
-        for k in range(2, 9):
-            j = int(m.jnt_qposadr.tolist().index(robot.qpos_adr[k]))
-            turns = joints[k] + 2 * math.pi * np.arange(-3, 4)
-            if m.jnt_limited[j]:
-                lo, hi = m.jnt_range[j]
-                turns = turns[(turns >= lo) & (turns <= hi)]
-            if len(turns):
-                out[k] = turns[np.argmin(np.abs(turns - near[k]))]
-        return out
 
     def arm_points(self, robot: Robot, qpos: np.ndarray) -> np.ndarray:
         """Where the robot's arm is at the configuration ``qpos`` (full; m): its elbow's
@@ -445,8 +400,3 @@ class ArmPlanner:
             mujoco.mj_kinematics(self.scene.model, d)
             out.append(d.site(robot.optical_site).xpos.copy())
         return np.array(out)
-
-
-def _near_angle(angle: float, reference: float) -> float:
-    """``angle`` (rad) shifted by whole turns to lie within half a turn of ``reference``."""
-    return reference + (angle - reference + math.pi) % (2 * math.pi) - math.pi
