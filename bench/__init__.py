@@ -17,13 +17,13 @@ results file, the printed table, resumable scene records).
 Importing ``bench`` is every script's set-up, done once here so that no script repeats
 it: the processor-dependent code paths are pinned (importing ``sim``) before numpy
 loads, and MuJoCo's GL backend is chosen before anything imports mujoco
-(:func:`sim.world.gl.resolve_gl_backend`; an existing ``MUJOCO_GL`` is kept). Unlike the
+(:func:`taskcam.sim.world.gl.resolve_gl_backend`; an existing ``MUJOCO_GL`` is kept). Unlike the
 library packages, ``bench`` is a package of entry points: this is why its import has
 these effects. The repository root is on ``sys.path`` because the scripts run from it
 with ``python -m``; nothing here edits ``sys.path``.
 """
 
-import sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
-from sim.world.gl import resolve_gl_backend
+import taskcam.sim  # noqa: F401  (pins the processor-dependent code paths before numpy loads)
+from taskcam.sim.world.gl import resolve_gl_backend
 
 resolve_gl_backend()

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mapping.camera import Pinhole
+from taskcam.mapping.camera import Pinhole
 
 SAMPLE_SPACING_PX = 2.0  # one search per this many pixels of projected edge
 END_MARGIN = 0.12  # no searches in this share of an edge at each end: corners mislead

@@ -24,7 +24,7 @@ from functools import cache
 
 import numpy as np
 
-from mapping import OccupancyGrid
+from taskcam.mapping import OccupancyGrid
 
 VISUAL_WINDOWS = (3, 5, 7, 9, 11, 15, 19, 23, 31)  # pixels
 DEPTH_WINDOWS = (4, 6, 8, 10)  # voxels

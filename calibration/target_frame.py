@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mapping import Pinhole, Target, opencv_pose, world_to_camera
+from taskcam.mapping import Pinhole, Target, opencv_pose, world_to_camera
 
 from .ekf import StereoCamera
 from .targets import holes_near

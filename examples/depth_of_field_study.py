@@ -20,17 +20,17 @@ import json
 from pathlib import Path
 from typing import Any
 
-from sim.determinism import pin
+from taskcam.sim.determinism import pin
 
 pin()  # the pinned arithmetic, before numpy and the others load (sim/determinism.py)
 
-from sim.world.gl import resolve_gl_backend  # noqa: E402
+from taskcam.sim.world.gl import resolve_gl_backend  # noqa: E402
 
 resolve_gl_backend()  # MUJOCO_GL, before mujoco loads
 
-from sim.config.scenario import Scenario, parse_scenario  # noqa: E402
-from sim.run_screen import distance_m  # noqa: E402
-from sim.stages.episode import Episode  # noqa: E402
+from taskcam.sim.config.scenario import Scenario, parse_scenario  # noqa: E402
+from taskcam.sim.run_screen import distance_m  # noqa: E402
+from taskcam.sim.stages.episode import Episode  # noqa: E402
 
 
 def scenario(near_m: float, seed: int = 0) -> Scenario:

@@ -1,10 +1,10 @@
 """A placement method of one's own: the rating function's candidates, nearest the target
 first.
 
-A placement method takes a ``placement.MethodInput`` (the targets, the camera, the map,
+A placement method takes a ``taskcam.placement.MethodInput`` (the targets, the camera, the map,
 the placement region, a random generator, the settings, and the rating function on
-request) and returns a ``placement.RatingField`` whose ``order`` lists the candidates to
-try, first first. Wrapped in a ``placement.Method``, it also says which checks its
+request) and returns a ``taskcam.placement.RatingField`` whose ``order`` lists the candidates to
+try, first first. Wrapped in a ``taskcam.placement.Method``, it also says which checks its
 candidates pass before they are planned. A scenario or sweep file names it as
 ``module:callable``::
 
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from placement import Method, MethodInput, RatingField
+from taskcam.placement import Method, MethodInput, RatingField
 
 
 def nearest_first(given: MethodInput) -> RatingField:

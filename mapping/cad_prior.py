@@ -14,13 +14,13 @@ place; height and tilt stay the nominal's:
    voxel wide on each centre's distance to the model); ties are averaged;
 2. the voxels within reach (plus a quarter voxel) of the model there are the object's;
    others (a table or post beside it, within the search margin) are left out;
-3. :func:`mapping.cad.fit_model` fits the model to those centres (robust loss at the
+3. :func:`taskcam.mapping.cad.fit_model` fits the model to those centres (robust loss at the
    voxel's scale), from the search's pose.
 
 Voxel centres are quantised: an occupied voxel says only that the object passes
 somewhere within it, and its centre lies up to half a diagonal from the surface. So a
 fit is poor only when its median centre is more than 0.7 voxel from the model (a good
-one is at most 0.63 on grids filled by :func:`mapping.cad.voxels_of`, 0.46 on the
+one is at most 0.63 on grids filled by :func:`taskcam.mapping.cad.voxels_of`, 0.46 on the
 default scene's maps). Its covariance treats each centre as the surface point plus
 independent quantisation noise sigma_q = resolution / sqrt(12): Gauss-Newton's
 (J^T J / sigma_q^2)^-1, combined with the nominal's covariance (a direction the voxels
@@ -99,7 +99,7 @@ class Misplacement:
                                f"rad, got {self}")
 
     def covariance(self) -> np.ndarray:
-        """The nominal pose's covariance (6x6, :func:`mapping.cad.pose_covariance`)."""
+        """The nominal pose's covariance (6x6, :func:`taskcam.mapping.cad.pose_covariance`)."""
         sd = np.array([RESTING_SD_RAD, RESTING_SD_RAD, self.yaw_rad / math.sqrt(3),
                        self.offset_m / math.sqrt(3), self.offset_m / math.sqrt(3),
                        RESTING_SD_M])

@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from mapping import GainModel, OccupancyGrid
+from taskcam.mapping import GainModel, OccupancyGrid
 
 from .errors import PlacementError
 from .next_best_view import information_gain

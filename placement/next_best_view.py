@@ -5,7 +5,7 @@ An exploration planner, asked where to put the camera for the task, would choose
 view that teaches it most about the target region: here, among the candidates the
 rating function's region allows (known free, within reach and height), a random
 subset of ``samples`` is each given a camera looking at the target, and rated by the
-expected information gain of that view over the target region (mapping.GainModel:
+expected information gain of that view over the target region (taskcam.mapping.GainModel:
 visibility-weighted entropy). Candidates are tried best first. Depth of field,
 resolution and the target's own visibility play no part, which is what sets it apart
 from the rating function.
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mapping import GainModel, View
+from taskcam.mapping import GainModel, View
 
 from .search import RatingField
 

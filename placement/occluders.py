@@ -24,7 +24,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
-from mapping import OccupancyGrid, circle_in_plane, stored_log_odds
+from taskcam.mapping import OccupancyGrid, circle_in_plane, stored_log_odds
 
 from .rating import TargetModel
 

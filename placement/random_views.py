@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mapping import OccupancyGrid
+from taskcam.mapping import OccupancyGrid
 
 from .rating import CameraModel, TargetModel
 from .search import RatingField, Region, region_voxels

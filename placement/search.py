@@ -17,7 +17,7 @@ from typing import Literal
 import numba as nb
 import numpy as np
 
-from mapping import LOG_ODDS_SCALE, OccupancyGrid, circle_in_plane, stored_log_odds
+from taskcam.mapping import LOG_ODDS_SCALE, OccupancyGrid, circle_in_plane, stored_log_odds
 
 from .errors import PlacementError
 from .occluders import Hull, expanded_hulls, grid_occluders, target_outline

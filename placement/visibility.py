@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mapping import OccupancyGrid, first_hits
+from taskcam.mapping import OccupancyGrid, first_hits
 
 
 def line_of_sight(grid: OccupancyGrid, cameras: np.ndarray, points: np.ndarray,

@@ -3,12 +3,12 @@ and sweep files), ``world`` (the MuJoCo world: scene, rendering, IK, motion), ``
 (the episode's stages over a world), ``experiments`` (trials, sweeps, results, studies)
 and the command line (``cli``) on top.
 
-Importing ``sim`` pins the processor-dependent code paths (environment variables that
+Importing ``taskcam.sim`` pins the processor-dependent code paths (environment variables that
 numpy, OpenCV, OpenBLAS and Mesa read when they load: sim/determinism.py) and does
 nothing else: no GL backend is probed and mujoco is not imported until a program that
-renders asks for it (:func:`sim.world.gl.resolve_gl_backend`).
+renders asks for it (:func:`taskcam.sim.world.gl.resolve_gl_backend`).
 """
 
-from sim.determinism import pin
+from taskcam.sim.determinism import pin
 
 pin()

@@ -9,14 +9,14 @@ import time
 import traceback
 from pathlib import Path
 
-from sim.config.scenario import load_scenario
-from sim.config.schema import ScenarioError
-from sim.determinism import is_command, pin
-from sim.experiments.results import ResultsError
-from sim.output_paths import check_directory, check_file
-from sim.run_screen import run_screen
-from sim.screen import Screen
-from sim.world.gl import resolve_gl_backend
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.determinism import is_command, pin
+from taskcam.sim.experiments.results import ResultsError
+from taskcam.sim.output_paths import check_directory, check_file
+from taskcam.sim.run_screen import run_screen
+from taskcam.sim.screen import Screen
+from taskcam.sim.world.gl import resolve_gl_backend
 
 EXIT_OK, EXIT_FAILURE, EXIT_INVALID = 0, 1, 2
 
@@ -82,8 +82,10 @@ def run(args: argparse.Namespace) -> int:
     check_directory("--out", out, run_files(not args.no_record, args.video), ["textures"])
 
     resolve_gl_backend()  # this command renders: the GL backend before mujoco loads
-    from sim.stages.episode import Episode  # imports mujoco: after the arguments are known good
-    from sim.stages.run_directory import write_run
+    from taskcam.sim.stages.episode import (
+        Episode,  # imports mujoco: after the arguments are known good
+    )
+    from taskcam.sim.stages.run_directory import write_run
 
     screen = Screen(quiet=args.quiet)  # quiet: the outcome table and errors only
     episode = Episode(scenario)  # builds the scene: the last check of the input
@@ -100,18 +102,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def sweep(args: argparse.Namespace) -> int:
-    from sim.config.sweep import load_sweep
+    from taskcam.sim.config.sweep import load_sweep
 
     check_file("--db", args.db)
     spec = load_sweep(args.spec, args.trials)
     resolve_gl_backend()  # this command renders: the GL backend before mujoco loads
-    from sim.world.scene import build_scene  # imports mujoco
+    from taskcam.sim.world.scene import build_scene  # imports mujoco
 
     build_scene(spec.scenario)  # the robots' bases clear of the work-piece and each other
     if args.workers < 1:
         raise ScenarioError("--workers", "workers", args.workers, "an integer >= 1")
-    from sim.experiments.results import Results
-    from sim.experiments.runner import run_sweep
+    from taskcam.sim.experiments.results import Results
+    from taskcam.sim.experiments.runner import run_sweep
 
     if args.db.exists() and args.db.stat().st_size > 0:  # before anything starts
         try:
@@ -122,7 +124,7 @@ def sweep(args: argparse.Namespace) -> int:
         if refused is not None:
             raise refused.given_as("--db")
     if args.scheduler:
-        from sim.experiments.runner import scheduler_problem
+        from taskcam.sim.experiments.runner import scheduler_problem
 
         if (problem := scheduler_problem(args.scheduler)) is not None:
             raise ScenarioError("--scheduler", "scheduler", args.scheduler,
@@ -144,7 +146,7 @@ def sweep(args: argparse.Namespace) -> int:
 
 
 def report(args: argparse.Namespace) -> int:
-    from sim.experiments.report_files import write_report as tables
+    from taskcam.sim.experiments.report_files import write_report as tables
 
     if not args.db.is_file():
         found = "a directory" if args.db.is_dir() else "no such file"
@@ -166,9 +168,9 @@ def report(args: argparse.Namespace) -> int:
 
 
 def compare(args: argparse.Namespace) -> int:
-    from sim.experiments import corrections
-    from sim.experiments.paired import compare as paired
-    from sim.experiments.paired import markdown
+    from taskcam.sim.experiments import corrections
+    from taskcam.sim.experiments.paired import compare as paired
+    from taskcam.sim.experiments.paired import markdown
 
     if args.out is not None:
         check_file("--out", args.out)
@@ -192,7 +194,7 @@ def compare(args: argparse.Namespace) -> int:
 
 
 def figure7(args: argparse.Namespace) -> int:
-    from sim.experiments.figure7 import figure7 as study
+    from taskcam.sim.experiments.figure7 import figure7 as study
 
     check_directory("--out", args.out, ["figure7_a.png", "figure7_b.png", "figure7.json"])
     report = study(args.out)

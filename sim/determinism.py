@@ -15,8 +15,8 @@ process started afterwards (sweep workers, a Dask ``LocalCluster``) inherits the
 variables. The process itself gets glibc's part only by starting again: ``pin(restart=
 True)`` re-executes it with the same arguments, as the ``taskcam`` command does.
 
-``python -m sim.pinned`` shows what is in effect; ``python -m sim.pinned COMMAND ...``
-runs COMMAND pinned (a Dask worker, say). This module imports nothing that it pins.
+``python -m taskcam.sim.pinned`` shows what is in effect; ``python -m taskcam.sim.pinned
+COMMAND ...`` runs COMMAND pinned (a Dask worker, say). This module imports nothing that it pins.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ PINS: dict[str, str] = {
     "GLIBC_TUNABLES": f"{HWCAPS}={GLIBC_MASK}",
 }
 LOADED_TOO_SOON = ("numpy", "cv2", "scipy", "mujoco", "OpenGL")
-ENTRY_MODULES = ("sim.cli", "sim.pinned")  # ``python -m`` forms of the command
+ENTRY_MODULES = ("taskcam.sim.cli", "taskcam.sim.pinned")  # ``python -m`` forms of the command
 RESTARTED = "TASKCAM_PIN_RESTARTED"  # marks a process started again (never twice)
 _started_again = os.environ.pop(RESTARTED, None) is not None  # not passed on to children
 _loaded_first: set[str] = set()
@@ -112,7 +112,7 @@ def _running(scripts: tuple[str, ...], modules: tuple[str, ...]) -> bool:
 
 def is_command() -> bool:
     """Whether this process is the ``taskcam`` command (its console script, or ``python
-    -m sim.cli`` / ``-m sim.pinned``), not a program that imports taskcam."""
+    -m taskcam.sim.cli`` / ``-m taskcam.sim.pinned``), not a program that imports taskcam."""
     return _running(("taskcam",), ENTRY_MODULES)
 
 

@@ -16,7 +16,7 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
-from sim.config.schema import ScenarioError
+from taskcam.sim.config.schema import ScenarioError
 
 
 class OutputPathError(ScenarioError):

@@ -1,10 +1,10 @@
 """What the pins of sim/determinism.py put in effect, and a launcher.
 
-``python -m sim.pinned`` starts as the ``taskcam`` command does (pinned, starting again
+``python -m taskcam.sim.pinned`` starts as the ``taskcam`` command does (pinned, starting again
 if it was not) and prints, as JSON, each library's chosen code (:func:`settings`) and
 digests of what each computes on fixed inputs (:func:`fingerprints`): the same digests
-on two machines mean the same arithmetic. ``python -m sim.pinned COMMAND ...`` runs
-COMMAND with the pinned environment, e.g. ``python -m sim.pinned dask worker
+on two machines mean the same arithmetic. ``python -m taskcam.sim.pinned COMMAND ...`` runs
+COMMAND with the pinned environment, e.g. ``python -m taskcam.sim.pinned dask worker
 tcp://HOST:8786``.
 """
 
@@ -19,8 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sim.determinism import PINS, is_command, late_imports, pin, started_pinned
-from sim.world.gl import resolve_gl_backend
+from taskcam.sim.determinism import PINS, is_command, late_imports, pin, started_pinned
+from taskcam.sim.world.gl import resolve_gl_backend
 
 # Two hinged links over a floor, lit, seen by a camera: libm (MuJoCo's kinematics) and
 # llvmpipe (its rasterising, lighting and depth) on a scene of a few triangles.

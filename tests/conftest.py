@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from sim.determinism import is_pytest, pin, started_pinned
-from sim.world.gl import resolve_gl_backend
+from taskcam.sim.determinism import is_pytest, pin, started_pinned
+from taskcam.sim.world.gl import resolve_gl_backend
 
 pin()  # processor-independent code paths here and in every process a test starts
 resolve_gl_backend()  # the tests render: the GL backend before any test module loads mujoco

@@ -7,9 +7,9 @@ import contextlib
 import io
 from pathlib import Path
 
-from sim.cli import main
-from sim.config.scenario import SCENARIO_DIR
-from sim.config.schema import one_line
+from taskcam.sim.cli import main
+from taskcam.sim.config.scenario import SCENARIO_DIR
+from taskcam.sim.config.schema import one_line
 
 SMOKE = (SCENARIO_DIR / "smoke.toml").read_text()
 

@@ -22,16 +22,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from input_errors import SMOKE, assert_one_line_error, cli
 
-from calibration import CalibrationError
-from calibration.pose import DegenerateGeometryError, estimate_pose
-from mapping import MappingError, SensorModel, StereoSettings
-from placement import DetectorLimits, PlacementError
-from sim.config.scenario import load_scenario, parse_scenario
-from sim.config.scene import ObstacleConfig
-from sim.config.schema import ScenarioError
-from sim.config.sweep import GENERATED, load_sweep
-from sim.experiments.results import Results, ResultsError
-from sim.world.scene import build_scene
+from taskcam.calibration import CalibrationError
+from taskcam.calibration.pose import DegenerateGeometryError, estimate_pose
+from taskcam.mapping import MappingError, SensorModel, StereoSettings
+from taskcam.placement import DetectorLimits, PlacementError
+from taskcam.sim.config.scenario import load_scenario, parse_scenario
+from taskcam.sim.config.scene import ObstacleConfig
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.config.sweep import GENERATED, load_sweep
+from taskcam.sim.experiments.results import Results, ResultsError
+from taskcam.sim.world.scene import build_scene
 
 # ------------------------------------------------------------------ files
 
@@ -183,7 +183,7 @@ def test_report_reads_a_results_database_without_changing_it(tmp_path):
 
 KILLED_MID_TRIAL = """
 import os, signal, sys
-from sim.experiments.results import Results
+from taskcam.sim.experiments.results import Results
 results = Results(sys.argv[1])
 results.add(json.loads(sys.argv[2]))
 results.db.execute("PRAGMA cache_size = 1")  # the pages spill into the file early
@@ -316,8 +316,8 @@ def test_a_sweep_may_not_override_what_each_trial_sets(tmp_path):
 @pytest.mark.parametrize(("name", "why"), [
     ("optimal", "unknown"),
     ("no_such_module_anywhere:method", "not importable"),
-    ("placement.methods:no_such_method", "has no"),
-    ("placement.methods:ACCEPTED", "not callable"),
+    ("taskcam.placement.methods:no_such_method", "has no"),
+    ("taskcam.placement.methods:ACCEPTED", "not callable"),
 ])
 def test_a_placement_method_that_does_not_resolve_is_refused_naming_why(tmp_path, name, why):
     """In a sweep file's methods and a scenario's search.method alike: one line, exit 2,

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mapping import OccupancyGrid
-from mapping.cad import BoxModel, fit_model, move_object, to_object, voxels_of
+from taskcam.mapping import OccupancyGrid
+from taskcam.mapping.cad import BoxModel, fit_model, move_object, to_object, voxels_of
 
 PANEL = BoxModel(np.array([[0.0, 0.0, 0.075]]), np.array([[0.005, 0.1, 0.075]]))
 
@@ -114,7 +114,7 @@ def test_analytic_jacobian_matches_finite_differences():
     """The fit's Jacobian (rotation vector on the left, then translation) against
     central differences, for a two-box model, points inside and outside, and the
     one-sided 'ahead' residuals."""
-    from mapping.cad import fit_residuals, pose_left_jacobian
+    from taskcam.mapping.cad import fit_residuals, pose_left_jacobian
 
     model = BoxModel(np.array([[0.0, 0.0, 0.075], [0.05, 0.0, 0.02]]),
                      np.array([[0.005, 0.1, 0.075], [0.01, 0.02, 0.02]]))

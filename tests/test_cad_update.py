@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mapping import MappingError, OccupancyGrid
-from mapping.cad import (
+from taskcam.mapping import MappingError, OccupancyGrid
+from taskcam.mapping.cad import (
     BoxModel,
     fit_model,
     move_object,
@@ -19,7 +19,7 @@ from mapping.cad import (
     pose_covariance,
     voxels_of,
 )
-from mapping.cad_prior import (
+from taskcam.mapping.cad_prior import (
     PLANAR,
     Misplacement,
     fit_lying_pose,
@@ -27,7 +27,7 @@ from mapping.cad_prior import (
     quantisation_sd,
     support_layer,
 )
-from mapping.grid import stored_log_odds
+from taskcam.mapping.grid import stored_log_odds
 
 PANEL = BoxModel(np.array([[0.0, 0.0, 0.075]]), np.array([[0.005, 0.1, 0.075]]))
 RES = 0.05

@@ -11,15 +11,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calibration import detect_holes, disk_template, locate_hole, log_response, to_gray
-from calibration.target_frame import projected_disk
-from mapping import Pinhole, opencv_pose, world_to_camera
-from sim.config.scenario import load_scenario
-from sim.config.scene import TargetConfig
-from sim.config.schema import ScenarioError
-from sim.world.ik import solve_camera_pose
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import HOLE_LIFT, build_scene
+from taskcam.calibration import detect_holes, disk_template, locate_hole, log_response, to_gray
+from taskcam.calibration.target_frame import projected_disk
+from taskcam.mapping import Pinhole, opencv_pose, world_to_camera
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.config.scene import TargetConfig
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.world.ik import solve_camera_pose
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import HOLE_LIFT, build_scene
 
 
 def _disk_image(u: float, v: float, r: float, shape=(240, 320), noise: float = 0.0,

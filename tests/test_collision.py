@@ -5,9 +5,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from sim.config.scenario import load_scenario
-from sim.world.collision import Proximity
-from sim.world.scene import build_scene
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.world.collision import Proximity
+from taskcam.sim.world.scene import build_scene
 
 
 def brute_force(model: mujoco.MjModel, data: mujoco.MjData, pairs: np.ndarray,

@@ -13,17 +13,17 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from calibration.pose import rotation_deg
-from calibration.stereo_features import FeatureFinder
-from calibration.tracker_settings import TrackerSettings
-from calibration.tracking import Frame
-from sim.config.scenario import load_scenario
-from sim.stages.corrector import PoseCorrector
-from sim.stages.placement_result import pose_error
-from sim.stages.world import new_grid
-from sim.world.ik import solve_camera_pose
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import build_scene
+from taskcam.calibration.pose import rotation_deg
+from taskcam.calibration.stereo_features import FeatureFinder
+from taskcam.calibration.tracker_settings import TrackerSettings
+from taskcam.calibration.tracking import Frame
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.stages.corrector import PoseCorrector
+from taskcam.sim.stages.placement_result import pose_error
+from taskcam.sim.stages.world import new_grid
+from taskcam.sim.world.ik import solve_camera_pose
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import build_scene
 
 TARGET_M, TARGET_DEG = 0.003, 0.2
 

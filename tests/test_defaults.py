@@ -13,10 +13,10 @@ from typing import Any
 
 import pytest
 
-from sim.config.scenario import SCENARIO_DIR, Scenario, load_scenario, parse_scenario
-from sim.config.schema import convert
-from sim.config.stages import SENSOR_DEFAULTS
-from sim.config.sweep import is_sweep_file, load_sweep
+from taskcam.sim.config.scenario import SCENARIO_DIR, Scenario, load_scenario, parse_scenario
+from taskcam.sim.config.schema import convert
+from taskcam.sim.config.stages import SENSOR_DEFAULTS
+from taskcam.sim.config.sweep import is_sweep_file, load_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 TABLE = ROOT / "docs" / "scenario.md"  # its section "## Keys"
@@ -179,7 +179,7 @@ def test_an_unnamed_file_is_named_by_its_stem(tmp_path):
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
 def test_a_shipped_scenario_parses_and_builds(path):
-    from sim.world.scene import build_scene
+    from taskcam.sim.world.scene import build_scene
 
     s = load_scenario(path)  # unknown keys, types and ranges: ScenarioError
     assert set(file_values(path)) <= set(schema())

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from placement.density import (
+from taskcam.placement.density import (
     Primitive,
     elevation_bands,
     first_hits,
@@ -19,10 +19,10 @@ from placement.density import (
     occlusion_density,
     ray_hits,
 )
-from sim.config.scenario import load_scenario
-from sim.config.scene import ObstacleConfig
-from sim.experiments.clutter_room import Boxes, ClutterRoom
-from sim.experiments.generate import (
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.config.scene import ObstacleConfig
+from taskcam.sim.experiments.clutter_room import Boxes, ClutterRoom
+from taskcam.sim.experiments.generate import (
     TOLERANCE,
     Clutter,
     clutter_target,
@@ -32,7 +32,7 @@ from sim.experiments.generate import (
     primitive,
     scenario_clutter,
 )
-from sim.world.scene import build_scene
+from taskcam.sim.world.scene import build_scene
 
 UP = np.array([0.0, 0.0, 1.0])
 

@@ -15,14 +15,14 @@ import pytest
 import mujoco
 from scipy.spatial.transform import Rotation
 
-from calibration.target_frame import projected_disk, sight
-from mapping import opencv_pose
-from placement import CameraModel, DetectorLimits, TargetModel, detectable
-from placement.detectability import focal_px, projected_radius, worst_partner
-from sim.config.scenario import load_scenario
-from sim.world.optics import Lens, defocus
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import build_scene
+from taskcam.calibration.target_frame import projected_disk, sight
+from taskcam.mapping import opencv_pose
+from taskcam.placement import CameraModel, DetectorLimits, TargetModel, detectable
+from taskcam.placement.detectability import focal_px, projected_radius, worst_partner
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.world.optics import Lens, defocus
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import build_scene
 
 CAMERA = CameraModel(fov=math.radians(60.0), pixels=480, near=0.35, far=1.5)
 F = 240 / math.tan(math.radians(30.0))  # 415.69 px

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.edge_fit import edge_covariance
-from calibration.edge_search import (
+from taskcam.calibration.edge_fit import edge_covariance
+from taskcam.calibration.edge_search import (
     MERGE_CONTRASTS,
     MERGE_PHASES,
     merge_bias_px,

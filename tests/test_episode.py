@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from mapping import Pinhole, Target, opencv_pose, world_to_camera
-from placement import Region, Weights, search
-from sim.config.scenario import SCENARIO_DIR, load_scenario
-from sim.stages.episode import Episode
-from sim.stages.rating_problem import camera_model, target_model
-from sim.world.collision import clearance
-from sim.world.render import Renderer
-from sim.world.scene import save_scene
+from taskcam.mapping import Pinhole, Target, opencv_pose, world_to_camera
+from taskcam.placement import Region, Weights, search
+from taskcam.sim.config.scenario import SCENARIO_DIR, load_scenario
+from taskcam.sim.stages.episode import Episode
+from taskcam.sim.stages.rating_problem import camera_model, target_model
+from taskcam.sim.world.collision import clearance
+from taskcam.sim.world.render import Renderer
+from taskcam.sim.world.scene import save_scene
 
 
 def _final(out):
@@ -64,7 +64,7 @@ def test_the_primary_target_is_viewed_when_nothing_hides_it(default_run):
 @pytest.mark.parametrize("count", [3, 4])
 @pytest.mark.slow
 def test_three_and_four_robots_place_and_see(count, tmp_path):
-    from sim.cli import main
+    from taskcam.sim.cli import main
 
     text = (SCENARIO_DIR / "default.toml").read_text()
     start, end = text.index("[robots]"), text.index("[workpiece]")
@@ -144,7 +144,7 @@ def test_robots_keep_clear_of_each_other_and_the_scene(default_run):
     scenario = load_scenario()
     positions = [np.array(r["pose"]["position"]) for r in summary["robots"]]
     assert np.linalg.norm(positions[0] - positions[1]) >= scenario.search.robot_separation_m
-    from sim.world.scene import build_scene
+    from taskcam.sim.world.scene import build_scene
     scene = build_scene(scenario)  # the same scene: robot indices for the final model
     for robot in scene.robots:
         near = clearance(model, data, robot, scene.robots)
@@ -180,7 +180,7 @@ def test_recording_has_the_cameras_grid_and_ratings(default_run):
 
 @pytest.mark.slow
 def test_unknown_voxels_are_recorded_on_request(tmp_path):
-    from sim.cli import main
+    from taskcam.sim.cli import main
 
     s = tmp_path / "small.toml"
     s.write_text("[robots]\ncount = 1\n[mapping]\nmax_views = 1\n")

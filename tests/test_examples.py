@@ -43,13 +43,13 @@ def test_a_users_own_placement_method_runs_in_a_sweep_on_spawned_workers(tmp_pat
     its two scenes, whose outcomes are stored under its name. Its cameras, nearest the
     slot first, stand nearer than the paper's biased random's in each scene (their
     distances read from the recorded resolution term, eq. 2: d = n / (2 tan(fov/2) Res))."""
-    from sim.config.sweep import load_sweep
-    from sim.experiments.results import Results
+    from taskcam.sim.config.sweep import load_sweep
+    from taskcam.sim.experiments.results import Results
 
     sweep_file = ROOT / "examples" / "nearest_first.toml"
     db = tmp_path / "nearest.sqlite"
-    done = subprocess.run([sys.executable, "-m", "sim.cli", "sweep", str(sweep_file), "--db",
-                           str(db), "--workers", "2"], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-m", "taskcam.sim.cli", "sweep", str(sweep_file),
+                           "--db", str(db), "--workers", "2"], capture_output=True, text=True,
                           cwd=tmp_path, timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert done.returncode == 0, done.stderr
     camera = load_sweep(sweep_file).scenario.camera

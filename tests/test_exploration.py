@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from mapping import mean_entropy
-from sim.config.scenario import load_scenario
-from sim.stages.episode import Episode
-from sim.world.render import Renderer
+from taskcam.mapping import mean_entropy
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.stages.episode import Episode
+from taskcam.sim.world.render import Renderer
 
 
 def explore(seed: int = 0, **mapping) -> tuple[Episode, dict]:
@@ -44,7 +44,7 @@ def test_region_entropy_never_rises_over_an_exploration(seed):
 
 
 def episode_interest(episode: Episode) -> np.ndarray:
-    from mapping import region_mask
+    from taskcam.mapping import region_mask
 
     return region_mask(episode.world.grid, episode.world.scene.primary.position,
                        np.array(episode.scenario.mapping.region_half_m))

@@ -7,22 +7,22 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibration.bundle import (
+from taskcam.calibration.bundle import (
     BundleProblem,
     Keyframe,
     marginal_pose_covariance,
     refine,
     triangulate,
 )
-from calibration.ekf import StereoCamera
-from calibration.fiducials import (
+from taskcam.calibration.ekf import StereoCamera
+from taskcam.calibration.fiducials import (
     Candidate,
     certainty,
     depth_contrast,
     pick,
     visual_contrast,
 )
-from mapping import OccupancyGrid, SensorModel
+from taskcam.mapping import OccupancyGrid, SensorModel
 
 
 def test_pick_prefers_the_best_and_spreads_the_rest():

@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from sim.cli import main
-from sim.config.scenario import SCENARIO_DIR
-from sim.experiments.figure7 import INSTANCES, PRIMARY, rate_instance
+from taskcam.sim.cli import main
+from taskcam.sim.config.scenario import SCENARIO_DIR
+from taskcam.sim.experiments.figure7 import INSTANCES, PRIMARY, rate_instance
 
 
 def test_figure7_command_writes_heatmaps_and_numbers(tmp_path, capsys):

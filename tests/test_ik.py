@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.config.scenario import load_scenario
-from sim.world.ik import camera_errors, solve_camera_pose
-from sim.world.scene import build_scene
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.world.ik import camera_errors, solve_camera_pose
+from taskcam.sim.world.scene import build_scene
 
 
 @pytest.fixture(scope="module")

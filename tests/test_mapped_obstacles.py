@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from test_planning import CLEARANCE_M, GOAL, WALL_HALF_Y, scene_with
 
-from mapping import FloorMap, ObstacleField
-from mapping.floor_map import FREE, OCCUPIED, UNSCANNED
-from sim.stages.world import new_floor, new_grid
-from sim.world.arm import scene_arm
-from sim.world.base_scanner import SCAN_HEIGHT_M, scan_into
-from sim.world.mapped_obstacles import covering_spheres, inside_geom
-from sim.world.planning import ArmPlanner
+from taskcam.mapping import FloorMap, ObstacleField
+from taskcam.mapping.floor_map import FREE, OCCUPIED, UNSCANNED
+from taskcam.sim.stages.world import new_floor, new_grid
+from taskcam.sim.world.arm import scene_arm
+from taskcam.sim.world.base_scanner import SCAN_HEIGHT_M, scan_into
+from taskcam.sim.world.mapped_obstacles import covering_spheres, inside_geom
+from taskcam.sim.world.planning import ArmPlanner
 
 
 @pytest.mark.parametrize("dims", [2, 3])

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapping import OccupancyGrid, Pinhole, SensorModel, integrate_depth, world_to_camera
+from taskcam.mapping import OccupancyGrid, Pinhole, SensorModel, integrate_depth, world_to_camera
 
 MODEL = SensorModel(hit=0.7, miss=0.4, clamp_min=0.12, clamp_max=0.97)
 HIT, MISS, LO, HI = MODEL.stored()  # log-odds in thousandths: 847, -405, -1992, 3476

@@ -6,9 +6,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
-from sim.config.sweep import is_sweep_file, load_sweep
-from sim.world.scene import MODELS_DIR, ROBOT_JOINTS, build_scene
+from taskcam.sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
+from taskcam.sim.config.sweep import is_sweep_file, load_sweep
+from taskcam.sim.world.scene import MODELS_DIR, ROBOT_JOINTS, build_scene
 
 
 def _step_without_warnings(model: mujoco.MjModel, data: mujoco.MjData, steps: int = 500) -> None:
@@ -49,8 +49,8 @@ def test_scenario_builds_and_steps(path):
     """Every scenario file, and every sweep file's first trial (its base scenario with
     the overrides and generated obstacles), compiles and steps cleanly."""
     if is_sweep_file(path):
-        from sim.experiments.runner import trial_specs
-        from sim.experiments.trial import trial_scenario
+        from taskcam.sim.experiments.runner import trial_specs
+        from taskcam.sim.experiments.trial import trial_scenario
 
         scenario, _ = trial_scenario(trial_specs(load_sweep(path))[0])
     else:

@@ -11,12 +11,12 @@ import pytest
 from rerun.chunk import RrdReader
 from scipy.spatial.transform import Rotation
 
-from sim.config.scenario import load_scenario, parse_scenario
-from sim.config.stages import MotionConfig
-from sim.stages.scene_record import SceneGeometry, body_path, geom_path
-from sim.world.motion import ARM_MOUNT, ErrorModel, MoveError, Mover
-from sim.world.planning import ArmPlanner
-from sim.world.scene import build_scene
+from taskcam.sim.config.scenario import load_scenario, parse_scenario
+from taskcam.sim.config.stages import MotionConfig
+from taskcam.sim.stages.scene_record import SceneGeometry, body_path, geom_path
+from taskcam.sim.world.motion import ARM_MOUNT, ErrorModel, MoveError, Mover
+from taskcam.sim.world.planning import ArmPlanner
+from taskcam.sim.world.scene import build_scene
 
 CLEARANCE_M = 0.03
 

@@ -19,9 +19,9 @@ from typing import Any
 import pytest
 from conftest import run_taskcam
 
-from sim.config.scenario import SCENARIO_DIR
-from sim.config.sweep import load_sweep
-from sim.experiments.results import Results
+from taskcam.sim.config.scenario import SCENARIO_DIR
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.experiments.results import Results
 
 NO_GL = "none-such"
 
@@ -52,9 +52,11 @@ def test_a_command_that_renders_fails_without_gl(tmp_path):
     assert not (tmp_path / "out" / "summary.json").exists()
 
 
-@pytest.mark.parametrize("module", ["sim", "sim.config", "sim.config.scenario",
-                                    "sim.config.sweep", "sim.experiments.results",
-                                    "sim.experiments.report", "sim.world.gl", "sim.cli"])
+@pytest.mark.parametrize("module", ["taskcam", "taskcam.sim", "taskcam.sim.config",
+                                    "taskcam.sim.config.scenario", "taskcam.sim.config.sweep",
+                                    "taskcam.sim.experiments.results",
+                                    "taskcam.sim.experiments.report", "taskcam.sim.world.gl",
+                                    "taskcam.sim.cli"])
 def test_importing_what_does_not_render_loads_no_mujoco(module):
     done = python(f"import sys, {module}\n"
                   "print(sorted(m for m in sys.modules if m.split('.')[0] == 'mujoco'))")

@@ -24,8 +24,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.config.scenario import load_scenario
-from sim.run_screen import (
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.run_screen import (
     correction_words,
     has_display,
     placed_line,
@@ -34,15 +34,15 @@ from sim.run_screen import (
     run_screen,
     view_command,
 )
-from sim.screen import Screen
-from sim.stages.overview import Overview, framed_points
-from sim.stages.overview_marks import (
+from taskcam.sim.screen import Screen
+from taskcam.sim.stages.overview import Overview, framed_points
+from taskcam.sim.stages.overview_marks import (
     PLACED_RGBA,
     UNPLACED_RGBA,
     robot_marks,
     target_marks,
 )
-from sim.world.scene import build_scene
+from taskcam.sim.world.scene import build_scene
 
 TASKCAM = Path(sys.executable).parent / "taskcam"
 

@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration import detect_holes
-from sim.world.optics import Lens, defocus
+from taskcam.calibration import detect_holes
+from taskcam.sim.world.optics import Lens, defocus
 
 LENS = Lens(near_m=0.35, far_m=1.5, coc_px=1.5)
 

@@ -7,9 +7,9 @@ import math
 
 import pytest
 
-from sim.experiments.orderings import Ordering, claims, markdown, mcnemar, orderings_in
-from sim.experiments.report_files import write_report
-from sim.experiments.results import Results
+from taskcam.sim.experiments.orderings import Ordering, claims, markdown, mcnemar, orderings_in
+from taskcam.sim.experiments.report_files import write_report
+from taskcam.sim.experiments.results import Results
 
 
 def test_the_paper_makes_48_claims_of_more_than_10_points():

@@ -15,7 +15,7 @@ import pytest
 from conftest import run_taskcam
 from input_errors import cli
 
-from sim.output_paths import OutputPathError, check_directory, check_file
+from taskcam.sim.output_paths import OutputPathError, check_directory, check_file
 
 SMOKE = Path(__file__).parents[1] / "scenarios" / "smoke.toml"
 

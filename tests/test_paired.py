@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from conftest import run_taskcam
 
-from sim.config.sweep import load_sweep
-from sim.experiments import corrections
-from sim.experiments.paired import compare, markdown, paired_interval, pooled
-from sim.experiments.results import Results, ResultsError
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.experiments import corrections
+from taskcam.sim.experiments.paired import compare, markdown, paired_interval, pooled
+from taskcam.sim.experiments.results import Results, ResultsError
 
 
 def test_interval_holds_the_difference_and_mirrors_when_the_sweeps_swap():

@@ -7,7 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from calibration.panel import panel_mask
+from taskcam.calibration.panel import panel_mask
 
 GREEN, ORANGE, YELLOW = (40, 120, 40), (230, 120, 20), (210, 185, 30)  # RGB
 

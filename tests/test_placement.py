@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from mapping import GainModel, OccupancyGrid, Pinhole, View, region_mask
-from placement import (
+from taskcam.mapping import GainModel, OccupancyGrid, Pinhole, View, region_mask
+from taskcam.placement import (
     METHODS,
     CameraModel,
     MethodInput,
@@ -289,12 +289,12 @@ def test_placement_methods_are_found_by_name():
     assert method_named("biased_random") is METHODS["biased_random"]
     assert not METHODS["biased_random"].detectable_only
     assert not METHODS["biased_random"].site_in_frame
-    own = method_named("placement.methods:by_rating")
+    own = method_named("taskcam.placement.methods:by_rating")
     assert own.choose is METHODS["rating"].choose and not own.detectable_only
     assert "unknown" in method_problem("nope")
     assert "not importable" in method_problem("no_such_module_here:f")
-    assert "has no" in method_problem("placement.methods:no_such_name")
-    assert "not callable" in method_problem("placement.methods:ACCEPTED")
+    assert "has no" in method_problem("taskcam.placement.methods:no_such_name")
+    assert "not callable" in method_problem("taskcam.placement.methods:ACCEPTED")
     assert method_problem("rating") is None
 
 

@@ -10,15 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.config.scenario import load_scenario
-from sim.stages.episode import Episode
-from sim.stages.exploration import explore
-from sim.stages.place import place, ranked_field
-from sim.stages.rating_problem import RatingProblem
-from sim.world.planning import ArmPlanner
-from sim.world.render import Renderer
-from sim.world.scene import build_scene
-from sim.world.sensing import DepthSensor
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.stages.episode import Episode
+from taskcam.sim.stages.exploration import explore
+from taskcam.sim.stages.place import place, ranked_field
+from taskcam.sim.stages.rating_problem import RatingProblem
+from taskcam.sim.world.planning import ArmPlanner
+from taskcam.sim.world.render import Renderer
+from taskcam.sim.world.scene import build_scene
+from taskcam.sim.world.sensing import DepthSensor
 
 DATA = Path(__file__).resolve().parent / "data" / "reach"
 UNCORRECTED = (0.05, 2.0)  # an uncorrected pose's sd (m, deg): placement does not use it

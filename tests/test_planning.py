@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from placement import travel_weighed
-from placement.rating import Ratings
-from placement.search import RatingField
-from sim.config.scenario import ScenarioError, load_scenario, parse_scenario
-from sim.world.collision import KeepOutBoxes, Proximity
-from sim.world.motion import dense_path
-from sim.world.planning import ArmPlanner
-from sim.world.scene import build_scene
+from taskcam.placement import travel_weighed
+from taskcam.placement.rating import Ratings
+from taskcam.placement.search import RatingField
+from taskcam.sim.config.scenario import ScenarioError, load_scenario, parse_scenario
+from taskcam.sim.world.collision import KeepOutBoxes, Proximity
+from taskcam.sim.world.motion import dense_path
+from taskcam.sim.world.planning import ArmPlanner
+from taskcam.sim.world.scene import build_scene
 
 CLEARANCE_M = 0.03
 WALL_HALF_Y = 0.9  # m: the wall's half length across the robot's way
@@ -172,8 +172,8 @@ def test_a_robot_keeps_out_of_the_insertion_corridor():
 
 
 def test_the_corridor_holds_the_panel_where_it_lies_above_its_slot_and_in_it():
-    from sim.config.stages import TaskConfig
-    from sim.stages.corridor import carry_corridor
+    from taskcam.sim.config.stages import TaskConfig
+    from taskcam.sim.stages.corridor import carry_corridor
 
     scene = build_scene(parse_scenario({}))
     data = scene.make_data()

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibration.ekf import FiducialFilter, StereoCamera
-from calibration.pose import DegenerateGeometryError, estimate_pose, invert, linear_fit
-from calibration.stats import RunningPose
+from taskcam.calibration.ekf import FiducialFilter, StereoCamera
+from taskcam.calibration.pose import DegenerateGeometryError, estimate_pose, invert, linear_fit
+from taskcam.calibration.stats import RunningPose
 
 K = np.array([[415.7, 0.0, 319.5], [0.0, 415.7, 239.5], [0.0, 0.0, 1.0]])
 CAMERA = StereoCamera(415.7, 415.7, 319.5, 239.5, 0.12)

@@ -10,7 +10,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapping import OccupancyGrid, SensorModel, first_hits, integrate_depth, opencv_pose, traverse
+from taskcam.mapping import (
+    OccupancyGrid,
+    Pinhole,
+    SensorModel,
+    first_hits,
+    integrate_depth,
+    opencv_pose,
+    traverse,
+)
 
 SHAPE = (12, 10, 8)
 
@@ -98,9 +106,9 @@ def test_first_hits_stop_at_blocked_voxels():
 
 
 def _rendered_frame():
-    from sim.config.scenario import load_scenario
-    from sim.world.render import Renderer, camera_pinhole, camera_pose
-    from sim.world.scene import build_scene
+    from taskcam.sim.config.scenario import load_scenario
+    from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+    from taskcam.sim.world.scene import build_scene
 
     scene = build_scene(load_scenario())
     data = scene.make_data()
@@ -132,7 +140,7 @@ def test_a_corridor_stays_free_and_its_end_occupied():
     """A wall at x = 1.5 with a tunnel; one camera looks down the tunnel."""
     g = OccupancyGrid.from_bounds(np.array([-1.0, -1.0, -1.0]), np.array([2.0, 1.0, 1.0]),
                                   0.1, SensorModel())
-    cam = __import__("mapping").Pinhole.from_fovy(math.radians(10), 8, 8)
+    cam = Pinhole.from_fovy(math.radians(10), 8, 8)
     T = np.eye(4)
     T[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)  # looks along +x
     T[:3, 3] = [-0.95, 0.05, 0.05]

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mapping import drive_lengths
-from placement.reach import ReachCells, build_reach_map
-from sim.config.scenario import parse_scenario
-from sim.world.arm import (
+from taskcam.mapping import drive_lengths
+from taskcam.placement.reach import ReachCells, build_reach_map
+from taskcam.sim.config.scenario import parse_scenario
+from taskcam.sim.world.arm import (
     SelfClear,
     arm_key,
     camera_chain,
@@ -21,9 +21,9 @@ from sim.world.arm import (
     save_reach_map,
     scene_arm,
 )
-from sim.world.ik import solve_camera_pose
-from sim.world.scene import build_scene
-from sim.world.standing import Places
+from taskcam.sim.world.ik import solve_camera_pose
+from taskcam.sim.world.scene import build_scene
+from taskcam.sim.world.standing import Places
 
 ROOT = Path(__file__).resolve().parent.parent
 ARMS = {"taskcam": "taskcam", "ur5e": "menagerie:universal_robots_ur5e",

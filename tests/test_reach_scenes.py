@@ -12,9 +12,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.config.scenario import load_scenario, parse_scenario
-from sim.config.schema import ScenarioError
-from sim.experiments.reach_scenes import (
+from taskcam.sim.config.scenario import load_scenario, parse_scenario
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.experiments.reach_scenes import (
     COMPACT_ARM,
     FAR_LIMIT_M,
     ORACLE,
@@ -25,10 +25,10 @@ from sim.experiments.reach_scenes import (
     obstacle_solid,
     oracle_table,
 )
-from sim.experiments.soak.draw_obstacles import TABLE_HALF
-from sim.experiments.soak.draw_scenario import to_toml
-from sim.world.robot_model import ARM_JOINTS
-from sim.world.scene import build_scene
+from taskcam.sim.experiments.soak.draw_obstacles import TABLE_HALF
+from taskcam.sim.experiments.soak.draw_scenario import to_toml
+from taskcam.sim.world.robot_model import ARM_JOINTS
+from taskcam.sim.world.scene import build_scene
 
 DRAWS = 300
 # bench/studies/placement_reach.py's minimum over 200 scenes: 30 robots with each of these

@@ -17,9 +17,9 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from mapping import Pinhole
-from sim.stages.record import Recorder
-from sim.stages.record_layout import image_share
+from taskcam.mapping import Pinhole
+from taskcam.sim.stages.record import Recorder
+from taskcam.sim.stages.record_layout import image_share
 
 # rerun's 2-D archetypes: a 3-D view draws them only through a pinhole above them
 TWO_D = {"Image", "DepthImage", "SegmentationImage", "EncodedImage", "EncodedDepthImage",

@@ -37,10 +37,10 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest, wilcoxon
 
-from sim.cli import main
-from sim.config.scenario import SCENARIO_DIR
-from sim.config.sweep import load_sweep
-from sim.experiments.results import Results
+from taskcam.sim.cli import main
+from taskcam.sim.config.scenario import SCENARIO_DIR
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.experiments.results import Results
 
 pytestmark = pytest.mark.slow  # the regression sweep: about ten minutes on 2 cores
 EASY, MEDIUM, HARD = 0.2, 0.1, 0.01

@@ -14,7 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from test_task import looking_at_the_slot, new_task, slot_belief_at
 
-from calibration.displacement import (
+from taskcam.calibration.displacement import (
     GOAL_MOVED_CHI2,
     fuse,
     fuse_robust,
@@ -23,8 +23,8 @@ from calibration.displacement import (
     stop_reason,
     within_probability,
 )
-from calibration.edge_fit import EdgeFit, fit_edges, moved_chi2, point_covariance
-from calibration.edge_model import (
+from taskcam.calibration.edge_fit import EdgeFit, fit_edges, moved_chi2, point_covariance
+from taskcam.calibration.edge_model import (
     FILL_PX,
     MIN_FACE_PX,
     MIN_FACING,
@@ -34,20 +34,20 @@ from calibration.edge_model import (
     StereoRig,
     visible_samples,
 )
-from mapping import opencv_pose
-from sim.config.scenario import load_scenario
-from sim.config.scene import ObstacleConfig
-from sim.config.schema import ScenarioError
-from sim.stages.relative import (
+from taskcam.mapping import opencv_pose
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.config.scene import ObstacleConfig
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.stages.relative import (
     GATE_CHI2,
     PanelBelief,
     RelativeMeasurer,
     level_covariance,
     levelled,
 )
-from sim.stages.task_images import SEEN_SCALE
-from sim.stages.task_result import Camera
-from sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.stages.task_images import SEEN_SCALE
+from taskcam.sim.stages.task_result import Camera
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
 
 ABOVE = np.array([0.004, -0.006, 0.06])  # the panel over its slot, as near the end (m)
 

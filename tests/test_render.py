@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mapping import Pinhole, camera_to_world, opencv_pose, world_to_camera
-from sim.config.scenario import load_scenario
-from sim.world.gl import resolve_gl_backend
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import build_scene
+from taskcam.mapping import Pinhole, camera_to_world, opencv_pose, world_to_camera
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.world.gl import resolve_gl_backend
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import build_scene
 
 
 @pytest.fixture(scope="module")

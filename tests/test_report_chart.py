@@ -12,8 +12,8 @@ import matplotlib.pyplot as plt
 import pytest
 from matplotlib.container import ErrorbarContainer
 
-from sim.experiments.report import Cell
-from sim.experiments.report_chart import chart
+from taskcam.sim.experiments.report import Cell
+from taskcam.sim.experiments.report_chart import chart
 
 TOLERANCES = (0.2, 0.1, 0.01)
 DENSITIES = (0.05, 0.2, 0.35)

@@ -24,10 +24,10 @@ from typing import Any
 
 import pytest
 
-from sim.config.sweep import load_sweep
-from sim.determinism import PINS, late_imports, started_pinned
-from sim.experiments.runner import pinned_here, run_sweep, worker_pool
-from sim.pinned import fingerprints, settings
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.determinism import PINS, late_imports, started_pinned
+from taskcam.sim.experiments.runner import pinned_here, run_sweep, worker_pool
+from taskcam.sim.pinned import fingerprints, settings
 
 STORED = Path(__file__).with_name("reproducibility.json")
 TASKCAM = Path(sys.executable).parent / "taskcam"
@@ -111,9 +111,9 @@ def outcomes(workdir: Path) -> dict[str, Any]:
 
 
 def command_report() -> dict[str, Any]:
-    """``python -m sim.pinned`` (it starts as the ``taskcam`` command does: sim first)
+    """``python -m taskcam.sim.pinned`` (it starts as the ``taskcam`` command does: sim first)
     from an environment without the pins: its settings and fingerprints."""
-    done = subprocess.run([sys.executable, "-m", "sim.pinned"], env=unpinned_environment(),
+    done = subprocess.run([sys.executable, "-m", "taskcam.sim.pinned"], env=unpinned_environment(),
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     return dict(json.loads(done.stdout))
@@ -187,7 +187,8 @@ def test_sweep_workers_are_pinned():
 
 def test_a_program_that_loads_numpy_first_is_not_trusted_with_trials():
     """numpy read its CPU features before sim could pin them: its sweeps run in workers."""
-    probe = ("import json, numpy, sim.experiments.runner as r, sim.determinism as d; "
+    probe = ("import json, numpy, taskcam.sim.experiments.runner as r, "
+             "taskcam.sim.determinism as d; "
              "print(json.dumps([r.pinned_here(), d.late_imports()]))")
     done = subprocess.run([sys.executable, "-c", probe], env=unpinned_environment(),
                           capture_output=True, text=True, timeout=120)

@@ -11,11 +11,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.config.scenario import Scenario, load_scenario
-from sim.config.schema import ScenarioError
-from sim.world.ik import solve_camera_pose
-from sim.world.robot_model import ARM_JOINTS
-from sim.world.scene import build_scene, save_scene
+from taskcam.sim.config.scenario import Scenario, load_scenario
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.world.ik import solve_camera_pose
+from taskcam.sim.world.robot_model import ARM_JOINTS
+from taskcam.sim.world.scene import build_scene, save_scene
 
 UR5E = "menagerie:universal_robots_ur5e"
 
@@ -161,7 +161,7 @@ def test_a_menagerie_camera_is_placed_moved_and_corrected(tmp_path):
                         # in the scene as it is (as examples/ and table1.toml do)
                         '[search]\nplanner_world = "model"\n'
                         "[task]\nenabled = false\n")
-    from sim.stages.episode import Episode
+    from taskcam.sim.stages.episode import Episode
 
     summary, _ = Episode(load_scenario(scenario)).run()
     robot = summary["robots"][0]

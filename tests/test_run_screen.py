@@ -14,14 +14,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from mapping import opencv_pose
-from sim.config.scenario import load_scenario
-from sim.run_screen import distance_m, placement_line, run_screen, task_line, view_command
-from sim.stages.episode import Episode
-from sim.stages.overview import Overview, framed_points, frustum_segments
-from sim.stages.run_directory import write_run
-from sim.world.render import camera_pinhole, camera_pose
-from sim.world.scene import build_scene
+from taskcam.mapping import opencv_pose
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.run_screen import distance_m, placement_line, run_screen, task_line, view_command
+from taskcam.sim.stages.episode import Episode
+from taskcam.sim.stages.overview import Overview, framed_points, frustum_segments
+from taskcam.sim.stages.run_directory import write_run
+from taskcam.sim.world.render import camera_pinhole, camera_pose
+from taskcam.sim.world.scene import build_scene
 
 
 def _robot(name: str, position: list[float], target: list[float]) -> dict:

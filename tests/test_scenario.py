@@ -9,12 +9,18 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from sim.cli import main
-from sim.config.scenario import DEFAULT_SCENARIO, Scenario, load_scenario, parse_scenario
-from sim.config.scene import BasePose, CameraConfig, ObstacleConfig, TargetConfig, WorkpieceConfig
-from sim.config.schema import ScenarioError
-from sim.config.stages import MappingConfig
-from sim.config.sweep import MethodConfig, Sweep, SweepConfig
+from taskcam.sim.cli import main
+from taskcam.sim.config.scenario import DEFAULT_SCENARIO, Scenario, load_scenario, parse_scenario
+from taskcam.sim.config.scene import (
+    BasePose,
+    CameraConfig,
+    ObstacleConfig,
+    TargetConfig,
+    WorkpieceConfig,
+)
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.config.stages import MappingConfig
+from taskcam.sim.config.sweep import MethodConfig, Sweep, SweepConfig
 
 
 def test_default_file_parses_and_is_frozen():

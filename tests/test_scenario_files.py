@@ -17,11 +17,11 @@ from typing import Any
 import pytest
 from conftest import run_taskcam
 
-from sim.config.scenario import SCENARIO_DIR, load_scenario
-from sim.config.sweep import is_sweep_file, load_sweep
-from sim.experiments.results import Results
-from sim.experiments.runner import trial_specs
-from sim.experiments.trial import run_trial
+from taskcam.sim.config.scenario import SCENARIO_DIR, load_scenario
+from taskcam.sim.config.sweep import is_sweep_file, load_sweep
+from taskcam.sim.experiments.results import Results
+from taskcam.sim.experiments.runner import trial_specs
+from taskcam.sim.experiments.trial import run_trial
 
 FILES = sorted(SCENARIO_DIR.glob("*.toml"))
 

@@ -12,7 +12,7 @@ import pyarrow as pa
 import pytest
 from rerun.chunk import RrdReader
 
-from sim.stages.record import Recorder
+from taskcam.sim.stages.record import Recorder
 
 SCENE = """
 <mujoco>

@@ -19,10 +19,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from input_errors import assert_one_line_error, cli
 
-from sim.config.scenario import Scenario, load_scenario, parse_scenario
-from sim.config.scene import ObstacleConfig
-from sim.config.schema import ScenarioError, build, convert
-from sim.config.sweep import GENERATED, SweepConfig, load_sweep
+from taskcam.sim.config.scenario import Scenario, load_scenario, parse_scenario
+from taskcam.sim.config.scene import ObstacleConfig
+from taskcam.sim.config.schema import ScenarioError, build, convert
+from taskcam.sim.config.sweep import GENERATED, SweepConfig, load_sweep
 
 # ------------------------------------------------------------------ schema fuzz
 

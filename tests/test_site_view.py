@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mapping import BoxModel, OccupancyGrid, SensorModel, move_object
-from placement import Region, TargetModel, clearance_map, expanded_hulls, search, tfv_at
-from placement.occluders import grid_occluders
-from sim.config.scenario import load_scenario
-from sim.stages.panel_model import panel_model
-from sim.stages.rating_problem import RatingProblem
-from sim.stages.replacement_rule import (
+from taskcam.mapping import BoxModel, OccupancyGrid, SensorModel, move_object
+from taskcam.placement import Region, TargetModel, clearance_map, expanded_hulls, search, tfv_at
+from taskcam.placement.occluders import grid_occluders
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.stages.panel_model import panel_model
+from taskcam.sim.stages.rating_problem import RatingProblem
+from taskcam.sim.stages.replacement_rule import (
     DROP,
     HOLD,
     MOVE_GAIN,
@@ -22,9 +22,9 @@ from sim.stages.replacement_rule import (
     required_rating,
     worth_the_move,
 )
-from sim.stages.site_occluders import SiteCache
-from sim.stages.site_view import MAX_LIFT_M, box_corners, site_rating, site_target
-from sim.world.scene import build_scene
+from taskcam.sim.stages.site_occluders import SiteCache
+from taskcam.sim.stages.site_view import MAX_LIFT_M, box_corners, site_rating, site_target
+from taskcam.sim.world.scene import build_scene
 
 S = load_scenario()
 ALONG = np.array([0.0, 1.0, 0.0])  # the slot's length (the work-piece's y axis)

@@ -16,14 +16,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sim.config.scenario import parse_scenario
-from sim.config.schema import ScenarioError
-from sim.experiments.soak.audit import audit_run
-from sim.experiments.soak.audit_findings import Audit
-from sim.experiments.soak.audit_robot import CORRECTION_TOL_M, POSE_TOL_DEG, POSE_TOL_M
-from sim.experiments.soak.draw_scenario import draw_scenario, is_heavy, to_toml
-from sim.experiments.soak.scenes import Job, discard_reason, run_file, run_scenes, tally
-from sim.world.scene import build_scene
+from taskcam.sim.config.scenario import parse_scenario
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.experiments.soak.audit import audit_run
+from taskcam.sim.experiments.soak.audit_findings import Audit
+from taskcam.sim.experiments.soak.audit_robot import CORRECTION_TOL_M, POSE_TOL_DEG, POSE_TOL_M
+from taskcam.sim.experiments.soak.draw_scenario import draw_scenario, is_heavy, to_toml
+from taskcam.sim.experiments.soak.scenes import Job, discard_reason, run_file, run_scenes, tally
+from taskcam.sim.world.scene import build_scene
 
 # Scenes 0-23 of the soak's draws at 240 x 180 (the smallest size at which most random
 # views still resolve the holes): 22 light, 2 (9 and 19) with correction and task on;

@@ -11,18 +11,18 @@ import math
 import numpy as np
 import pytest
 
-from calibration.displacement import via_feature
-from calibration.edge_fit import EdgeFit, point_covariance
-from calibration.edge_model import StereoRig
-from calibration.ekf import StereoCamera
-from calibration.target_frame import Sighting
-from mapping import Target, opencv_pose
-from sim.config.scenario import load_scenario
-from sim.stages.relative import HOLE_CENTRE_SD_PX, stand_in
-from sim.stages.slot_target import SLOT, is_slot, task_targets
-from sim.stages.task_result import Camera
-from sim.stages.timer import Timer
-from sim.stages.world import build_world
+from taskcam.calibration.displacement import via_feature
+from taskcam.calibration.edge_fit import EdgeFit, point_covariance
+from taskcam.calibration.edge_model import StereoRig
+from taskcam.calibration.ekf import StereoCamera
+from taskcam.calibration.target_frame import Sighting
+from taskcam.mapping import Target, opencv_pose
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.stages.relative import HOLE_CENTRE_SD_PX, stand_in
+from taskcam.sim.stages.slot_target import SLOT, is_slot, task_targets
+from taskcam.sim.stages.task_result import Camera
+from taskcam.sim.stages.timer import Timer
+from taskcam.sim.stages.world import build_world
 
 CAMERA = StereoCamera(416.0, 416.0, 320.0, 240.0, 0.12)
 RIG = StereoRig(640, 480, 416.0, 416.0, 320.0, 240.0, 0.12, 0.5)

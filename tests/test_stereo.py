@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-from mapping import Pinhole
-from mapping.stereo import StereoSettings, stereo_depth
-from sim.config.scenario import load_scenario
-from sim.world.ik import solve_camera_pose
-from sim.world.render import Renderer, camera_pinhole
-from sim.world.scene import build_scene
+from taskcam.mapping import Pinhole
+from taskcam.mapping.stereo import StereoSettings, stereo_depth
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.world.ik import solve_camera_pose
+from taskcam.sim.world.render import Renderer, camera_pinhole
+from taskcam.sim.world.scene import build_scene
 
 VIEWS = ("close", "start")
 

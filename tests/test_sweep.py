@@ -19,14 +19,14 @@ from pathlib import Path
 
 import pytest
 
-from sim.cli import main
-from sim.config.scenario import SCENARIO_DIR
-from sim.config.sweep import load_sweep
-from sim.experiments.report import cells, markdown, wilson
-from sim.experiments.report_files import write_report
-from sim.experiments.results import Results
-from sim.experiments.runner import run_on_pool, run_sweep, trial_specs
-from sim.experiments.trial import CRASH_TRIAL_ENV, run_trial
+from taskcam.sim.cli import main
+from taskcam.sim.config.scenario import SCENARIO_DIR
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.experiments.report import cells, markdown, wilson
+from taskcam.sim.experiments.report_files import write_report
+from taskcam.sim.experiments.results import Results
+from taskcam.sim.experiments.runner import run_on_pool, run_sweep, trial_specs
+from taskcam.sim.experiments.trial import CRASH_TRIAL_ENV, run_trial
 
 TINY = (SCENARIO_DIR / "smoke.toml").read_text()
 TABLES = ("trials", "outcomes", "successes")
@@ -66,7 +66,7 @@ def test_the_reference_rows_are_complete(reference):
 @pytest.mark.slow
 def test_kill_9_then_resume_gives_the_rows_of_an_uninterrupted_run(tiny, reference, tmp_path):
     db = tmp_path / "killed.sqlite"
-    cmd = [sys.executable, "-m", "sim.cli", "sweep", str(tiny), "--db", str(db),
+    cmd = [sys.executable, "-m", "taskcam.sim.cli", "sweep", str(tiny), "--db", str(db),
            "--workers", "2"]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
@@ -117,7 +117,7 @@ def test_a_worker_that_dies_is_replaced_and_its_trials_run_again(tiny, reference
     the sweep carries on, on a fresh pool, and stores every trial, as an uninterrupted
     run does."""
     db = tmp_path / "died.sqlite"
-    cmd = [sys.executable, "-m", "sim.cli", "sweep", str(tiny), "--db", str(db),
+    cmd = [sys.executable, "-m", "taskcam.sim.cli", "sweep", str(tiny), "--db", str(db),
            "--workers", "2"]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
@@ -242,7 +242,7 @@ def _free_port() -> int:
 
 @pytest.mark.slow
 def test_a_real_dask_cluster_loses_no_trial_when_a_worker_dies(tiny, reference, tmp_path):
-    """A `dask scheduler` and two workers started as the docs say (`python -m sim.pinned
+    """A `dask scheduler` and two workers started as the docs say (`python -m taskcam.sim.pinned
     dask worker ADDRESS`), each its own command; one worker (its nanny and process) is
     killed mid-sweep, as a machine lost: the other runs what it held, and the rows are
     an uninterrupted sweep's."""
@@ -256,13 +256,13 @@ def test_a_real_dask_cluster_loses_no_trial_when_a_worker_dies(tiny, reference, 
                                 start_new_session=True, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)]
     try:
-        started += [subprocess.Popen([sys.executable, "-m", "sim.pinned", dask, "worker",
+        started += [subprocess.Popen([sys.executable, "-m", "taskcam.sim.pinned", dask, "worker",
                                       address, "--nthreads", "1", "--no-dashboard"],
                                      start_new_session=True, stdout=subprocess.DEVNULL,
                                      stderr=subprocess.DEVNULL) for _ in range(2)]
-        sweep = subprocess.Popen([sys.executable, "-m", "sim.cli", "sweep", str(tiny), "--db",
-                                  str(db), "--scheduler", address], stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.PIPE, text=True)
+        sweep = subprocess.Popen([sys.executable, "-m", "taskcam.sim.cli", "sweep", str(tiny),
+                                  "--db", str(db), "--scheduler", address],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         with Client(address, timeout=60) as client:
             client.wait_for_workers(2, timeout=180)
             deadline = time.monotonic() + 600

@@ -13,24 +13,24 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from calibration.panel import panel_mask
-from mapping import LyingPose, Pinhole, pose_covariance, voxels_of
-from sim.config.scenario import Scenario, load_scenario
-from sim.config.scene import ObstacleConfig
-from sim.experiments.soak.audit import audit_run
-from sim.stages.panel_model import panel_model
-from sim.stages.place import REJECTED_RADIUS_M
-from sim.stages.record import Recorder
-from sim.stages.relative import SlotBelief
-from sim.stages.replacement import Replacement
-from sim.stages.task import STILL_MISSES, InsertionTask
-from sim.stages.task_images import BLUR_MARGIN_PX, MIN_POINTS, stereo_window
-from sim.stages.task_result import Camera, TaskResult
-from sim.stages.world import new_grid
-from sim.world.ik import solve_camera_pose
-from sim.world.optics import Lens
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import Robot, Scene, build_scene, save_scene
+from taskcam.calibration.panel import panel_mask
+from taskcam.mapping import LyingPose, Pinhole, pose_covariance, voxels_of
+from taskcam.sim.config.scenario import Scenario, load_scenario
+from taskcam.sim.config.scene import ObstacleConfig
+from taskcam.sim.experiments.soak.audit import audit_run
+from taskcam.sim.stages.panel_model import panel_model
+from taskcam.sim.stages.place import REJECTED_RADIUS_M
+from taskcam.sim.stages.record import Recorder
+from taskcam.sim.stages.relative import SlotBelief
+from taskcam.sim.stages.replacement import Replacement
+from taskcam.sim.stages.task import STILL_MISSES, InsertionTask
+from taskcam.sim.stages.task_images import BLUR_MARGIN_PX, MIN_POINTS, stereo_window
+from taskcam.sim.stages.task_result import Camera, TaskResult
+from taskcam.sim.stages.world import new_grid
+from taskcam.sim.world.ik import solve_camera_pose
+from taskcam.sim.world.optics import Lens
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import Robot, Scene, build_scene, save_scene
 
 VIEW_FROM = np.array([-0.6, -0.3, 0.5])  # camera offset from the slot (m)
 
@@ -176,8 +176,8 @@ def test_a_camera_that_keeps_losing_the_panel_is_placed_again(monkeypatch, tmp_p
     robot ended: its ``pose`` is ``scene.xml``'s keyframe ``final``, its ``placements``
     hold both moves with their poses, and its sightings say they were made from the
     first."""
-    import sim.stages.task as task_module
-    from sim.stages.episode import Episode
+    import taskcam.sim.stages.task as task_module
+    from taskcam.sim.stages.episode import Episode
 
     base = load_scenario()
     # the panel carried and stepped without noise: where it covers the site when r1 is
@@ -251,8 +251,8 @@ def test_cameras_missing_a_panel_that_stands_still_are_placed_again_at_once(monk
     measures it, so it stands still, and a third look would see what the first two saw.
     Each camera is placed again after the second miss (not after ``lost_limit`` = 3),
     and the task measures the panel from the new views."""
-    import sim.stages.task as task_module
-    from sim.stages.episode import Episode
+    import taskcam.sim.stages.task as task_module
+    from taskcam.sim.stages.episode import Episode
 
     base = load_scenario()
     assert base.task.lost_limit > task_module.STILL_MISSES

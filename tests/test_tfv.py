@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from mapping import OccupancyGrid, SensorModel
-from placement import (
+from taskcam.mapping import OccupancyGrid, SensorModel
+from taskcam.placement import (
     CameraModel,
     SearchSettings,
     TargetModel,
@@ -22,7 +22,7 @@ from placement import (
     search,
     target_outline,
 )
-from placement.tfv import PackedHulls, sphere
+from taskcam.placement.tfv import PackedHulls, sphere
 
 UP = np.array([0.0, 0.0, 1.0])
 TARGET = TargetModel("t", np.zeros(3), UP, 0.03)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.world.scene import JOINT_SPEEDS, ROBOT_JOINTS
-from sim.world.timing import ROBOT_LIMITS, time_path
+from taskcam.sim.world.scene import JOINT_SPEEDS, ROBOT_JOINTS
+from taskcam.sim.world.timing import ROBOT_LIMITS, time_path
 
 DT = 0.002  # s, the physics timestep
 TOL = 1e-6  # relative, on the limits

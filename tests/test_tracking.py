@@ -11,12 +11,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibration.ekf import StereoCamera
-from calibration.flow import flow_disparities, nearest_disparity
-from calibration.pose import invert
-from calibration.stereo_features import FeatureFinder, StereoFeatures, row_disparities, spread
-from calibration.tracker_settings import TrackerSettings
-from calibration.tracking import (
+from taskcam.calibration.ekf import StereoCamera
+from taskcam.calibration.flow import flow_disparities, nearest_disparity
+from taskcam.calibration.pose import invert
+from taskcam.calibration.stereo_features import (
+    FeatureFinder,
+    StereoFeatures,
+    row_disparities,
+    spread,
+)
+from taskcam.calibration.tracker_settings import TrackerSettings
+from taskcam.calibration.tracking import (
     SCALE,
     SCALE_KEPT,
     TURN_DEG,

@@ -13,20 +13,20 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.target_frame import (
+from taskcam.calibration.target_frame import (
     Sighting,
     common_frame,
     in_measured_frame,
     search_slack_px,
     sight,
 )
-from mapping import Pinhole, Target
-from sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
-from sim.stages.episode import Episode, place_look_do
-from sim.stages.exploration import explore
-from sim.stages.rating_problem import RatingProblem
-from sim.stages.world import misplace_secondaries
-from sim.world.render import Renderer
+from taskcam.mapping import Pinhole, Target
+from taskcam.sim.config.scenario import SCENARIO_DIR, load_scenario, parse_scenario
+from taskcam.sim.stages.episode import Episode, place_look_do
+from taskcam.sim.stages.exploration import explore
+from taskcam.sim.stages.rating_problem import RatingProblem
+from taskcam.sim.stages.world import misplace_secondaries
+from taskcam.sim.world.render import Renderer
 
 
 def _targets() -> tuple[Target, ...]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mapping import GainModel, OccupancyGrid, Pinhole, SensorModel, View, region_mask
+from taskcam.mapping import GainModel, OccupancyGrid, Pinhole, SensorModel, View, region_mask
 
 ONE_RAY = Pinhole(1, 1, 1.0, 1.0, 0.0, 0.0)  # a single ray along the optical axis
 

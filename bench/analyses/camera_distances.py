@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import SCENARIOS
-from sim.config.sweep import load_sweep
-from sim.stages.slot_target import SLOT, SLOT_SITE
-from sim.world.scene import build_scene
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.stages.slot_target import SLOT, SLOT_SITE
+from taskcam.sim.world.scene import build_scene
 
 TABLE1 = SCENARIOS / "table1.toml"
 NEAR_M = 0.9  # the "nearer than 0.9 m"

@@ -22,10 +22,10 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from calibration.displacement import STOPPED_WITHIN
-from sim.experiments.orderings import mcnemar
-from sim.stages.site_view import SITE
-from sim.stages.slot_target import SLOT
+from taskcam.calibration.displacement import STOPPED_WITHIN
+from taskcam.sim.experiments.orderings import mcnemar
+from taskcam.sim.stages.site_view import SITE
+from taskcam.sim.stages.slot_target import SLOT
 
 
 def pairs(db: Path) -> dict[tuple[str, str], dict[float, list[tuple[dict[str, Any],

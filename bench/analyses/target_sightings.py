@@ -22,12 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from mapping import opencv_pose
-from sim.config.sweep import load_sweep
-from sim.experiments import trial as trial_module
-from sim.experiments.runner import trial_specs
-from sim.stages import insertion
-from sim.stages.slot_target import SLOT_SITE, is_slot
+from taskcam.mapping import opencv_pose
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.experiments import trial as trial_module
+from taskcam.sim.experiments.runner import trial_specs
+from taskcam.sim.stages import insertion
+from taskcam.sim.stages.slot_target import SLOT_SITE, is_slot
 
 FAR_MM = 5.0  # 2.5 times the hard tolerance (2 mm): this far off alone fails the task
 

@@ -18,10 +18,10 @@ import statistics
 import time
 
 from bench.common import print_table, write_results
-from sim.config.scenario import load_scenario
-from sim.config.stages import ViewGain, ViewStrategy
-from sim.stages.episode import Episode
-from sim.world.render import Renderer
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.config.stages import ViewGain, ViewStrategy
+from taskcam.sim.stages.episode import Episode
+from taskcam.sim.world.render import Renderer
 
 STRATEGIES: dict[str, tuple[ViewStrategy, ViewGain]] = {  # name: (strategy, gain)
     "cooperative entropy (taskcam)": ("cooperative", "entropy"),

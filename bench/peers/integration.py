@@ -17,19 +17,19 @@ from typing import Any
 import numpy as np
 
 from bench.common import print_table, write_results
-from mapping import (
+from taskcam.mapping import (
     OccupancyGrid,
     Pinhole,
     SensorModel,
     integrate_depth,
     opencv_pose,
 )
-from mapping.integrate import share_bands
-from mapping.raycast import image_working_bytes
-from sim.config.scenario import load_scenario
-from sim.world.ik import solve_camera_pose
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import build_scene
+from taskcam.mapping.integrate import share_bands
+from taskcam.mapping.raycast import image_working_bytes
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.world.ik import solve_camera_pose
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import build_scene
 
 LO, HI, RES, RANGE = np.array([-2.0, -2.0, 0.0]), np.array([2.0, 2.0, 2.0]), 0.02, 4.0
 

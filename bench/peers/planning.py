@@ -39,22 +39,22 @@ import mujoco
 import numpy as np
 
 from bench.common import SCENARIOS, print_table, write_results
-from placement import detectable
-from sim.config.sweep import load_sweep
-from sim.experiments.runner import trial_specs
-from sim.experiments.trial import trial_scenario
-from sim.stages.exploration import explore
-from sim.stages.place import MAX_STANDLESS, REJECTED_RADIUS_M, ranked_field
-from sim.stages.rating_problem import RatingProblem, target_model
-from sim.stages.timer import Timer
-from sim.stages.world import build_world
-from sim.world.base_scanner import scan_into
-from sim.world.collision import Proximity
-from sim.world.ik import IKSettings, solve_camera_pose
-from sim.world.motion import dense_path
-from sim.world.planning import ArmPlanner
-from sim.world.render import Renderer
-from sim.world.scene import Robot, Scene
+from taskcam.placement import detectable
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.experiments.runner import trial_specs
+from taskcam.sim.experiments.trial import trial_scenario
+from taskcam.sim.stages.exploration import explore
+from taskcam.sim.stages.place import MAX_STANDLESS, REJECTED_RADIUS_M, ranked_field
+from taskcam.sim.stages.rating_problem import RatingProblem, target_model
+from taskcam.sim.stages.timer import Timer
+from taskcam.sim.stages.world import build_world
+from taskcam.sim.world.base_scanner import scan_into
+from taskcam.sim.world.collision import Proximity
+from taskcam.sim.world.ik import IKSettings, solve_camera_pose
+from taskcam.sim.world.motion import dense_path
+from taskcam.sim.world.planning import ArmPlanner
+from taskcam.sim.world.render import Renderer
+from taskcam.sim.world.scene import Robot, Scene
 
 TABLE1 = SCENARIOS / "table1.toml"
 

@@ -21,12 +21,12 @@ from typing import Any
 import numpy as np
 
 from bench.common import write_results
-from calibration.ekf import StereoCamera
-from calibration.pose import DegenerateGeometryError, estimate_pose, invert
-from mapping import camera_to_world, opencv_pose
-from sim.config.scenario import load_scenario
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import build_scene
+from taskcam.calibration.ekf import StereoCamera
+from taskcam.calibration.pose import DegenerateGeometryError, estimate_pose, invert
+from taskcam.mapping import camera_to_world, opencv_pose
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import build_scene
 
 METHODS = ("linear", "kabsch", "sqpnp")
 

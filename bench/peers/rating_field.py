@@ -4,7 +4,7 @@ Run from the repository root: ``python -m bench.peers.rating_field``. The world 
 scene, known exactly: every geom is voxelised at 2.1 cm (P = 0.99 touching, 0.01 not),
 giving over a million candidate camera positions in the depth of field of the targets.
 
-- ours: ``placement.search`` (exhaustive, every term, TFV from cone-expanded hulls on
+- ours: ``taskcam.placement.search`` (exhaustive, every term, TFV from cone-expanded hulls on
   the sphere) over all candidates and both targets, median of 5 runs; the paper's
   uniform expansion is also rated, for its agreement;
 - brute force: rays from a candidate to 25 points all over each target (centre, rings)
@@ -31,8 +31,8 @@ import mujoco
 import numpy as np
 
 from bench.common import print_table, write_results
-from mapping import OccupancyGrid, SensorModel, Target
-from placement import (
+from taskcam.mapping import OccupancyGrid, SensorModel, Target
+from taskcam.placement import (
     CameraModel,
     SearchSettings,
     TargetModel,
@@ -40,8 +40,8 @@ from placement import (
     line_of_sight,
     search,
 )
-from sim.config.scenario import load_scenario
-from sim.world.scene import build_scene
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.world.scene import build_scene
 
 LO, HI = np.array([-1.6, -1.6, 0.0]), np.array([1.6, 1.6, 1.8])
 

@@ -30,9 +30,9 @@ from pathlib import Path
 from typing import Any
 
 from bench.common import print_table, write_results
-from sim.config.sweep import Sweep, load_sweep
-from sim.experiments.runner import init_worker, one_thread_each, run_sweep, trial_specs
-from sim.experiments.trial import TrialSpec, run_trial
+from taskcam.sim.config.sweep import Sweep, load_sweep
+from taskcam.sim.experiments.runner import init_worker, one_thread_each, run_sweep, trial_specs
+from taskcam.sim.experiments.trial import TrialSpec, run_trial
 
 STAGES = ("build", "mapping", "placement", "ik", "motion", "correction", "task", "rendering",
           "total")

@@ -16,7 +16,7 @@ Run from the repository root::
   ``scenarios/table1_loop.toml`` (the positioning errors and the pose correction on)
   against ``table1.toml``, alternating.
 
-Each side is one long-lived worker process started pinned (``python -m sim.pinned``),
+Each side is one long-lived worker process started pinned (``python -m taskcam.sim.pinned``),
 so imports and compiled code's caches are paid once, as in a sweep's worker. Prints one
 table and writes bench/results/sweep_speed.json: rows ``table1 scene`` (ours: seconds a
 scene now, peer: the baseline's, ratio ours / peer), one per density, and ``whole loop
@@ -33,15 +33,16 @@ from pathlib import Path
 from typing import Any
 
 from bench.common import ROOT, SCENARIOS, print_table, write_results
-from sim.config.sweep import load_sweep
+from taskcam.sim.config.sweep import load_sweep
 
 # Run in a checkout's own environment: reads "SWEEP DENSITY_INDEX TRIAL" lines, runs that
-# trial and answers with its seconds and what it placed. Only names both commits have.
+# trial and answers with its seconds and what it placed. Only names both commits have
+# (PREFIX: "taskcam.", or nothing at a commit that installed its packages at the top).
 WORKER = """
 import json, sys, time
-from sim.config.sweep import load_sweep
-from sim.experiments.runner import trial_specs
-from sim.experiments.trial import run_trial
+from PREFIXsim.config.sweep import load_sweep
+from PREFIXsim.experiments.runner import trial_specs
+from PREFIXsim.experiments.trial import run_trial
 specs = {}
 for line in sys.stdin:
     path, d, t = line.split()
@@ -61,8 +62,10 @@ class Worker:
 
     def __init__(self, checkout: Path) -> None:
         python = checkout / ".venv" / "bin" / "python"
+        prefix = "taskcam." if (checkout / "taskcam" / "__init__.py").exists() else ""
+        worker = WORKER.replace("PREFIX", prefix)
         self.process = subprocess.Popen(
-            [str(python), "-m", "sim.pinned", str(python), "-c", WORKER], cwd=checkout,
+            [str(python), "-m", f"{prefix}sim.pinned", str(python), "-c", worker], cwd=checkout,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
 
     def run(self, sweep: str, density_index: int, trial: int) -> dict[str, Any]:

@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from bench.common import print_table, write_results
 from bench.studies.measurement_views import POSE_SD_M, Site, StoredImages
-from sim.stages.task_result import Camera
+from taskcam.sim.stages.task_result import Camera
 
 TURNS_DEG = (0.0, 3.0, 6.0)
 DISTANCE_M = (0.5, 1.2)

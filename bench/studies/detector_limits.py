@@ -23,7 +23,7 @@ camera. The limits are per image, from the depth of field's near limit on, where
 detector's matching window lies inside the image: the rectangle radius >= R, angle <= A
 (bin edges) in which every radius bin and every angle bin finds >= 95 % of its samples
 under every configuration (640x480 with and without MSAA, 320x240 with), accepting the
-most samples. Then placement.detectable with DetectorLimits' defaults is checked against
+most samples. Then taskcam.placement.detectable with DetectorLimits' defaults is checked against
 the detector on the views aimed at a hole: its success rate where the limits accept the
 view ("inside", predicted 1) and where they refuse it ("outside", predicted 0). Prints
 the grids and that table and writes bench/results/detector_limits.json.
@@ -42,11 +42,11 @@ import numpy as np
 
 from bench.common import write_results
 from bench.studies.detector_views import MAX_ERROR_PX, observe, probe_scenario, view_pose
-from placement import CameraModel, DetectorLimits, TargetModel, detectable
-from sim.config.scenario import Scenario, load_scenario
-from sim.world.optics import Lens
-from sim.world.render import Renderer
-from sim.world.scene import Scene, build_scene
+from taskcam.placement import CameraModel, DetectorLimits, TargetModel, detectable
+from taskcam.sim.config.scenario import Scenario, load_scenario
+from taskcam.sim.world.optics import Lens
+from taskcam.sim.world.render import Renderer
+from taskcam.sim.world.scene import Scene, build_scene
 
 CONFIGS = (  # label, width, height, MSAA samples: as table1, the default, regression
     ("640x480", 640, 480, 0), ("640x480 MSAA 4", 640, 480, 4), ("320x240 MSAA 4", 320, 240, 4))
@@ -189,7 +189,7 @@ def tests_at_hole(samples: list[dict[str, Any]], field: str, edges: tuple[float,
 
 def predictions(rows: list[dict[str, Any]], scene: Scene, limits: DetectorLimits
                 ) -> dict[str, list[bool]]:
-    """placement.detectable's verdicts per sample: from both cameras' real positions
+    """taskcam.placement.detectable's verdicts per sample: from both cameras' real positions
     ('pair'), from the left one alone ('left'), and from the left one with the baseline
     in its worst direction ('worst_roll', what placement can check before the roll is
     known)."""
@@ -269,7 +269,7 @@ def main() -> None:
     measured = derive_limits(list(per_image.values()))
     chosen = DetectorLimits()
     print(f"\nreliable under every configuration: radius >= {measured[0]} px, "
-          f"angle <= {measured[1]} deg; placement.DetectorLimits defaults: {chosen}")
+          f"angle <= {measured[1]} deg; taskcam.placement.DetectorLimits defaults: {chosen}")
     table = []
     for label, width, height, msaa in CONFIGS:
         scene = build_scene(probe_scenario(width, height, msaa))
@@ -333,7 +333,7 @@ def main() -> None:
         "detector_limits", table,
         peer_note=("No peer detector: 'ours' is the measured success rate (found within "
                    f"{MAX_ERROR_PX} px of the hole's image's centre) over the views the limits "
-                   "(placement.DetectorLimits' defaults) accept or refuse, 'peer' what "
+                   "(taskcam.placement.DetectorLimits' defaults) accept or refuse, 'peer' what "
                    "the limits predict (1 inside, 0 outside); the ratio is the success "
                    "rate inside."),
         definitions={

@@ -15,14 +15,14 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibration import disk_template, locate_hole, log_response, match_hole_near, to_gray
-from calibration.target_frame import projected_disk, search_slack_px, sight
-from mapping import Pinhole, Target, opencv_pose, world_to_camera
-from sim.config.scenario import Scenario, load_scenario
-from sim.stages.look import find_target
-from sim.world.optics import Lens, defocus
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import Scene
+from taskcam.calibration import disk_template, locate_hole, log_response, match_hole_near, to_gray
+from taskcam.calibration.target_frame import projected_disk, search_slack_px, sight
+from taskcam.mapping import Pinhole, Target, opencv_pose, world_to_camera
+from taskcam.sim.config.scenario import Scenario, load_scenario
+from taskcam.sim.stages.look import find_target
+from taskcam.sim.world.optics import Lens, defocus
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import Scene
 
 MAX_ERROR_PX = 1.0  # a find farther than this from the centre of the hole's image is wrong
 

@@ -48,7 +48,7 @@ import numpy as np
 
 from bench.common import write_results
 from bench.studies.measurement_views import MEASUREMENTS, Site, View
-from mapping import opencv_pose
+from taskcam.mapping import opencv_pose
 
 DISTANCES = (0.25, 0.5, 0.8, 1.2, 1.5, 2.0)  # m; depth of field 0.35-1.5 m
 ANGLES = (0, 30, 50, 70)  # deg off the slot's normal

@@ -31,20 +31,20 @@ from scipy.spatial.transform import Rotation
 
 from bench.common import SCENARIOS
 from bench.studies.detector_views import look_rotation, put_camera
-from calibration.target_frame import common_frame, in_measured_frame, sight
-from mapping import opencv_pose
-from sim.config.scenario import Scenario
-from sim.config.scene import ObstacleConfig
-from sim.config.sweep import load_sweep
-from sim.stages.look import target_sd
-from sim.stages.record import Recorder
-from sim.stages.relative import SLOT_FRAME_SD, PanelBelief, RelativeMeasurer, SlotBelief
-from sim.stages.task import InsertionTask
-from sim.stages.task_result import Camera
-from sim.stages.world import misplace_workpiece, new_grid
-from sim.world.optics import Lens, defocus
-from sim.world.render import Renderer, camera_pinhole, camera_pose
-from sim.world.scene import build_scene
+from taskcam.calibration.target_frame import common_frame, in_measured_frame, sight
+from taskcam.mapping import opencv_pose
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.config.scene import ObstacleConfig
+from taskcam.sim.config.sweep import load_sweep
+from taskcam.sim.stages.look import target_sd
+from taskcam.sim.stages.record import Recorder
+from taskcam.sim.stages.relative import SLOT_FRAME_SD, PanelBelief, RelativeMeasurer, SlotBelief
+from taskcam.sim.stages.task import InsertionTask
+from taskcam.sim.stages.task_result import Camera
+from taskcam.sim.stages.world import misplace_workpiece, new_grid
+from taskcam.sim.world.optics import Lens, defocus
+from taskcam.sim.world.render import Renderer, camera_pinhole, camera_pose
+from taskcam.sim.world.scene import build_scene
 
 TABLE1 = SCENARIOS / "table1.toml"
 POSE_SD_M = 0.001  # the pose correction's residual (RMS of the 3-D error)

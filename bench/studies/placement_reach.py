@@ -7,7 +7,7 @@ Run from the repository root: ``python -m bench.studies.placement_reach [--scene
 [--workers 2] [--out runs/placement_reach] [--seed 2026]``. Each scene (drawn from
 ``numpy.random.default_rng([seed, index, attempt])``; a draw the scenario parser or the
 scene builder refuses is counted and redrawn, as the soak does) runs twice in a worker
-process, as ``taskcam run`` would run it (sim.stages.episode.Episode, no recording):
+process, as ``taskcam run`` would run it (taskcam.sim.stages.episode.Episode, no recording):
 
 - ``default`` (ours): the scene as drawn, every placement setting at the project's default;
 - ``oracle`` (peer): the same scene with ``[search] planner_world = "model"``,
@@ -50,13 +50,13 @@ from typing import Any
 import numpy as np
 
 from bench.common import append, done_records, print_table, write_results
-from sim.config.scenario import load_scenario
-from sim.config.schema import ScenarioError
-from sim.experiments.reach_scenes import ORACLE, draw_reach_scene, oracle_table
-from sim.experiments.runner import worker_pool
-from sim.experiments.soak.draw_scenario import to_toml
-from sim.experiments.soak.scenes import MAX_DRAWS, discard_reason
-from sim.stages.episode import Episode
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.experiments.reach_scenes import ORACLE, draw_reach_scene, oracle_table
+from taskcam.sim.experiments.runner import worker_pool
+from taskcam.sim.experiments.soak.draw_scenario import to_toml
+from taskcam.sim.experiments.soak.scenes import MAX_DRAWS, discard_reason
+from taskcam.sim.stages.episode import Episode
 
 RUNS = ("default", "oracle")
 POOL_RESTARTS = 2  # a pool whose worker died is started afresh this often at most

@@ -69,7 +69,7 @@ def akaze(threshold: float = 1e-5, most_bits: float = 120.0) -> Iterator[None]:
     threshold of 1e-5 finds about as many keypoints as SIFT at the tracker's contrast
     (2800-4400 an image); the 486-bit descriptors are compared by Hamming distance, and
     one further than a quarter of their bits (120) matches nothing."""
-    import calibration.stereo_features as stereo_features
+    import taskcam.calibration.stereo_features as stereo_features
 
     contrib = getattr(cv2, "xfeatures2d", None)
     if contrib is None:
@@ -106,8 +106,8 @@ def akaze(threshold: float = 1e-5, most_bits: float = 120.0) -> Iterator[None]:
 
 
 def one_seed(job: tuple[str, int]) -> list[dict[str, Any]]:
-    from sim.config.scenario import load_scenario
-    from sim.stages.episode import Episode
+    from taskcam.sim.config.scenario import load_scenario
+    from taskcam.sim.stages.episode import Episode
 
     variant, seed = job
     scenario = load_scenario(seed=seed)

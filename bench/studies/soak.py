@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from bench.common import ROOT, append, done_records, write_results
-from sim.experiments.soak.draw_scenario import is_heavy
-from sim.experiments.soak.scenes import Job, run_scenes, tally
+from taskcam.sim.experiments.soak.draw_scenario import is_heavy
+from taskcam.sim.experiments.soak.scenes import Job, run_scenes, tally
 
 DOCS = ROOT / "docs" / "soak.md"
 BEGIN, END = "<!-- soak table: written by bench/studies/soak.py -->", "<!-- end of soak table -->"

@@ -39,10 +39,10 @@ class Truth:
         self._view: tuple[Any, ...] | None = None  # (depth, T world<-camera, camera)
 
     def install(self) -> None:
-        import calibration.tracking as tracking
-        import sim.stages.corrector as corrector
-        from mapping import opencv_pose
-        from sim.world.render import camera_pose
+        import taskcam.calibration.tracking as tracking
+        import taskcam.sim.stages.corrector as corrector
+        from taskcam.mapping import opencv_pose
+        from taskcam.sim.world.render import camera_pose
 
         truth = self
         look, begin = corrector.PoseCorrector._look, corrector.PoseCorrector.begin
@@ -97,8 +97,8 @@ class Truth:
 
 
 def one(truth: Truth, variant: str, seed: int) -> dict[str, Any]:
-    from sim.config.scenario import load_scenario
-    from sim.stages.episode import Episode
+    from taskcam.sim.config.scenario import load_scenario
+    from taskcam.sim.stages.episode import Episode
 
     truth.reset()
     scenario = load_scenario(seed=seed)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sim.config.scene import (
+from taskcam.sim.config.scene import (
     BasePose,
     CameraConfig,
     ObstacleConfig,
@@ -25,8 +25,15 @@ from sim.config.scene import (
     RobotsConfig,
     WorkpieceConfig,
 )
-from sim.config.schema import Checked, ScenarioError, build, checked, merged_tables, read_toml
-from sim.config.stages import (
+from taskcam.sim.config.schema import (
+    Checked,
+    ScenarioError,
+    build,
+    checked,
+    merged_tables,
+    read_toml,
+)
+from taskcam.sim.config.stages import (
     SENSOR_DEFAULTS,
     CorrectionConfig,
     GridConfig,

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from sim.config.schema import Checked, ScenarioError, checked, nonnegative, positive
+from taskcam.sim.config.schema import Checked, ScenarioError, checked, nonnegative, positive
 
 MAX_ROBOTS = 4
 

@@ -8,7 +8,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-from sim.config.schema import Checked, ScenarioError, checked, nonnegative, positive, probability
+from taskcam.sim.config.schema import (
+    Checked,
+    ScenarioError,
+    checked,
+    nonnegative,
+    positive,
+    probability,
+)
 
 # Sensor models (hit, miss, clamp_min, clamp_max) per depth source. Rendered depth is
 # exact, so one observation is near-certain; stereo depth has holes and outliers, so it
@@ -92,7 +99,7 @@ class RatingConfig(Checked):
 def check_placement_method(config: Checked, key: str, name: str) -> None:
     """ScenarioError (at ``key`` of ``config``) unless ``name`` names a placement method:
     a registered one, or a ``module:callable`` this process imports."""
-    from placement.methods import ACCEPTED, method_problem  # here: the config imports light
+    from taskcam.placement.methods import ACCEPTED, method_problem  # here: the config imports light
 
     problem = method_problem(name)
     if problem is not None:

@@ -32,15 +32,15 @@ from typing import Any
 
 import numpy as np
 
-from sim.config.scenario import SCENARIO_DIR, Scenario, parse_scenario, scenario_table
-from sim.config.schema import (
+from taskcam.sim.config.scenario import SCENARIO_DIR, Scenario, parse_scenario, scenario_table
+from taskcam.sim.config.schema import (
     Checked,
     ScenarioError,
     build,
     checked,
     merged_tables,
 )
-from sim.config.stages import check_placement_method
+from taskcam.sim.config.stages import check_placement_method
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from sim.config.scene import ObstacleConfig
+from taskcam.sim.config.scene import ObstacleConfig
 
 ROBOT_ROOM_M = 0.7  # about each robot's start: its base turns and its arm reaches there
 HOLE_MARGIN_M = 0.01  # beyond a hole's rim, so that its edge stays in sight

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.experiments.results import Results
+from taskcam.sim.experiments.results import Results
 
 BOUND_M, BOUND_DEG = 0.003, 0.2  # a correction's error that counts as within the bound
 

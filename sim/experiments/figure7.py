@@ -5,7 +5,7 @@ A 100 x 100 world of unit cells; the primary target at (50, 50), a secondary at
 cell free but the occluder's). In the first instance the occluder stands aside and the
 best camera position views the primary target; in the second it stands in front of the
 primary, and the best position views the secondary. The rating field is computed by
-the same code as in 3-D (placement.search) on a grid one cell thick.
+the same code as in 3-D (taskcam.placement.search) on a grid one cell thick.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mapping import OccupancyGrid, SensorModel
-from placement.rating import CameraModel, TargetModel
-from placement.search import RatingField, search
+from taskcam.mapping import OccupancyGrid, SensorModel
+from taskcam.placement.rating import CameraModel, TargetModel
+from taskcam.placement.search import RatingField, search
 
 SIZE = 100
 PRIMARY = TargetModel("primary", np.array([50.0, 50.0, 0.0]), np.array([1.0, 0.0, 0.0]), 1.0)

@@ -32,23 +32,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from placement.density import (
+from taskcam.placement.density import (
     Primitive,
     band_shares,
     elevation_bands,
     ray_entry,
 )
-from sim.config.scenario import Scenario
-from sim.config.scene import ObstacleConfig
-from sim.experiments.clutter_room import (
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.config.scene import ObstacleConfig
+from taskcam.sim.experiments.clutter_room import (
     HOLE_MARGIN_M,
     ROBOT_ROOM_M,
     Boxes,
     ClutterRoom,
     workpiece_solids,
 )
-from sim.stages.corridor import carry_corridor
-from sim.world.scene import build_scene
+from taskcam.sim.stages.corridor import carry_corridor
+from taskcam.sim.world.scene import build_scene
 
 TOLERANCE = 0.02  # the share at every radius is within this of the request
 AIM = 0.005  # drawing stops this close below the request

@@ -20,9 +20,9 @@ from pathlib import Path
 
 from scipy.stats import binomtest, fisher_exact
 
-from placement import method_label
-from sim.experiments.report import DIFFICULTY, PAPER, percent, wilson, write_rows
-from sim.experiments.results import Results, ResultsError
+from taskcam.placement import method_label
+from taskcam.sim.experiments.report import DIFFICULTY, PAPER, percent, wilson, write_rows
+from taskcam.sim.experiments.results import Results, ResultsError
 
 GAP_POINTS = 10.0  # the paper's cells must differ by more than this to make a claim
 ROOM = GAP_POINTS / 100  # both rates this near 100 % (or 0 %) leave no room for such a gap

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sim.experiments.orderings import mcnemar
-from sim.experiments.report import Z95, wilson
-from sim.experiments.results import Results, ResultsError
+from taskcam.sim.experiments.orderings import mcnemar
+from taskcam.sim.experiments.report import Z95, wilson
+from taskcam.sim.experiments.results import Results, ResultsError
 
 
 def paired_interval(both: int, first_only: int, second_only: int, neither: int,

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.experiments.soak.draw_obstacles import (
+from taskcam.sim.experiments.soak.draw_obstacles import (
     PANEL_RADIUS,
     TABLE_HALF,
     Frame,
@@ -44,7 +44,7 @@ from sim.experiments.soak.draw_obstacles import (
     over_table,
     rounded,
 )
-from sim.experiments.soak.draw_scenario import (
+from taskcam.sim.experiments.soak.draw_scenario import (
     ROBOT_RADIUS,
     base_clear,
     draw_scenario,

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from placement import method_label
-from sim.experiments.results import Results, ResultsError
+from taskcam.placement import method_label
+from taskcam.sim.experiments.results import Results, ResultsError
 
 Z95 = 1.959963984540054
 

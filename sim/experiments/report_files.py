@@ -8,8 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from sim.experiments import orderings as claims
-from sim.experiments.report import (
+from taskcam.sim.experiments import orderings as claims
+from taskcam.sim.experiments.report import (
     DIFFICULTY,
     bands_markdown,
     camera_views,
@@ -25,7 +25,7 @@ from sim.experiments.report import (
     views_markdown,
     write_csv,
 )
-from sim.experiments.report_chart import write_chart
+from taskcam.sim.experiments.report_chart import write_chart
 
 
 def write_report(db: str | Path, out: str | Path | None = None) -> dict[str, Any]:

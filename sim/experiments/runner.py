@@ -31,11 +31,11 @@ from typing import Any
 
 from tqdm import tqdm
 
-from sim.config.sweep import Sweep
-from sim.determinism import PINS, late_imports, pin, started_pinned
-from sim.experiments.results import Results
-from sim.experiments.trial import TrialSpec, run_trial
-from sim.world.gl import resolve_gl_backend
+from taskcam.sim.config.sweep import Sweep
+from taskcam.sim.determinism import PINS, late_imports, pin, started_pinned
+from taskcam.sim.experiments.results import Results
+from taskcam.sim.experiments.trial import TrialSpec, run_trial
+from taskcam.sim.world.gl import resolve_gl_backend
 
 PR_SET_PDEATHSIG = 1  # prctl option: the signal a process gets when its parent dies
 
@@ -260,7 +260,7 @@ def _unpinned(client: Any) -> str | None:
         return None
     return (f"worker(s) {', '.join(unpinned)} did not start with taskcam's pinned "
             f"environment ({', '.join(PINS)}), so their results would depend on their "
-            "processor: start them with `python -m sim.pinned dask worker ADDRESS` "
+            "processor: start them with `python -m taskcam.sim.pinned dask worker ADDRESS` "
             "(docs/reproducibility.md)")
 
 

@@ -30,15 +30,15 @@ from typing import Any
 
 import numpy as np
 
-from sim.config.scenario import Scenario
-from sim.config.sweep import MethodConfig
-from sim.experiments.generate import Clutter, scenario_clutter
-from sim.stages.episode import place_look_do
-from sim.stages.exploration import explore
-from sim.stages.rating_problem import RatingProblem
-from sim.stages.timer import Timer
-from sim.stages.world import build_world
-from sim.world.render import Renderer
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.config.sweep import MethodConfig
+from taskcam.sim.experiments.generate import Clutter, scenario_clutter
+from taskcam.sim.stages.episode import place_look_do
+from taskcam.sim.stages.exploration import explore
+from taskcam.sim.stages.rating_problem import RatingProblem
+from taskcam.sim.stages.timer import Timer
+from taskcam.sim.stages.world import build_world
+from taskcam.sim.world.render import Renderer
 
 
 @dataclass(frozen=True)

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.panel import window
-from mapping import BoxModel, fit_model, opencv_pose
-from mapping.cad import to_object
-from mapping.stereo import stereo_depth
-from sim.stages.task_images import MIN_POINTS, SETTINGS, TaskImages
-from sim.stages.task_result import Camera
+from taskcam.calibration.panel import window
+from taskcam.mapping import BoxModel, fit_model, opencv_pose
+from taskcam.mapping.cad import to_object
+from taskcam.mapping.stereo import stereo_depth
+from taskcam.sim.stages.task_images import MIN_POINTS, SETTINGS, TaskImages
+from taskcam.sim.stages.task_result import Camera
 
 # A fit is good when half the points are this close to it and this many within 1 cm,
 # for the default camera (640 x 480, 60 deg: fx 416 px); stereo depth noise, and so the

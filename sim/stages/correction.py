@@ -43,8 +43,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration.pose import PoseEstimate, rotation_deg
-from sim.config.stages import MotionConfig
+from taskcam.calibration.pose import PoseEstimate, rotation_deg
+from taskcam.sim.config.stages import MotionConfig
 
 # The accuracy a trusted correction holds: the pose-correction benchmark's located moves
 # are all within it (bench/studies/pose_correction.py at c726ff8: at most 2.8 mm and 0.14 deg off

@@ -12,19 +12,32 @@ import cv2
 import mujoco
 import numpy as np
 
-from calibration.ekf import FiducialFilter, StereoCamera
-from calibration.fiducials import Candidate, certainty, depth_contrast, pick, rate, visual_contrast
-from calibration.pose import METHODS, DegenerateGeometryError, estimate_pose, invert, rotation_deg
-from calibration.stereo_features import FeatureFinder, StereoFeatures
-from calibration.targets import to_gray
-from calibration.tracker_settings import TrackerSettings
-from calibration.tracking import FiducialTracker, Frame
-from mapping import OccupancyGrid, Pinhole, mujoco_pose, opencv_pose
-from sim.config.stages import CorrectionConfig
-from sim.stages.correction import Correction, UsedFiducial, distrust
-from sim.stages.timer import Timer
-from sim.world.render import Renderer, camera_pose
-from sim.world.scene import Robot, Scene
+from taskcam.calibration.ekf import FiducialFilter, StereoCamera
+from taskcam.calibration.fiducials import (
+    Candidate,
+    certainty,
+    depth_contrast,
+    pick,
+    rate,
+    visual_contrast,
+)
+from taskcam.calibration.pose import (
+    METHODS,
+    DegenerateGeometryError,
+    estimate_pose,
+    invert,
+    rotation_deg,
+)
+from taskcam.calibration.stereo_features import FeatureFinder, StereoFeatures
+from taskcam.calibration.targets import to_gray
+from taskcam.calibration.tracker_settings import TrackerSettings
+from taskcam.calibration.tracking import FiducialTracker, Frame
+from taskcam.mapping import OccupancyGrid, Pinhole, mujoco_pose, opencv_pose
+from taskcam.sim.config.stages import CorrectionConfig
+from taskcam.sim.stages.correction import Correction, UsedFiducial, distrust
+from taskcam.sim.stages.timer import Timer
+from taskcam.sim.world.render import Renderer, camera_pose
+from taskcam.sim.world.scene import Robot, Scene
 
 WIDER = 3.0  # the final frame's second search: this many times search_px and max_jump
 OWN_DOWNSCALE = 4  # the robots' bodies are masked from a segmentation at 1/4 resolution

@@ -15,8 +15,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from sim.config.stages import TaskConfig
-from sim.world.collision import KeepOutBoxes
+from taskcam.sim.config.stages import TaskConfig
+from taskcam.sim.world.collision import KeepOutBoxes
 
 CARRY_SAMPLES = 11  # boxes along the carry (as many as the task's open-loop carry steps)
 DESCENT_SAMPLES = 4  # ... and along the descent into the slot

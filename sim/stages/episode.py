@@ -24,10 +24,10 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from calibration.target_frame import common_frame
-from mapping import Pinhole
-from sim.config.scenario import Scenario
-from sim.run_screen import (
+from taskcam.calibration.target_frame import common_frame
+from taskcam.mapping import Pinhole
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.run_screen import (
     look_line,
     mapping_line,
     placed_line,
@@ -35,22 +35,22 @@ from sim.run_screen import (
     replacement_line,
     task_line,
 )
-from sim.screen import Meter
-from sim.stages.correction import prior_pose_sd
-from sim.stages.corrector import PoseCorrector
-from sim.stages.exploration import explore
-from sim.stages.insertion import run_task
-from sim.stages.look import Look, look
-from sim.stages.overview import eye_position, framed_points
-from sim.stages.place import place
-from sim.stages.placement_result import Placement, pose_dict, pose_error
-from sim.stages.rating_problem import RatingProblem
-from sim.stages.record import Recorder
-from sim.stages.slot_target import panel_over_slot, task_targets
-from sim.stages.timer import Timer
-from sim.stages.world import World, build_world
-from sim.world.render import Renderer, camera_pose
-from sim.world.sensing import DepthSensor
+from taskcam.sim.screen import Meter
+from taskcam.sim.stages.correction import prior_pose_sd
+from taskcam.sim.stages.corrector import PoseCorrector
+from taskcam.sim.stages.exploration import explore
+from taskcam.sim.stages.insertion import run_task
+from taskcam.sim.stages.look import Look, look
+from taskcam.sim.stages.overview import eye_position, framed_points
+from taskcam.sim.stages.place import place
+from taskcam.sim.stages.placement_result import Placement, pose_dict, pose_error
+from taskcam.sim.stages.rating_problem import RatingProblem
+from taskcam.sim.stages.record import Recorder
+from taskcam.sim.stages.slot_target import panel_over_slot, task_targets
+from taskcam.sim.stages.timer import Timer
+from taskcam.sim.stages.world import World, build_world
+from taskcam.sim.world.render import Renderer, camera_pose
+from taskcam.sim.world.sensing import DepthSensor
 
 VERSION = "0.1.0"
 # the recording's 3-D view is framed for a field of view this wide (deg), its picture
@@ -81,7 +81,7 @@ class Outcome:
 def place_look_do(world: World, renderer: Renderer, problem: RatingProblem, method: str,
                   secondary: bool = True) -> Outcome:
     """Stages 2-4 on the mapped ``world``: place every robot in turn by the placement
-    ``method`` (a name placement.method_named knows) to view one of the
+    ``method`` (a name taskcam.placement.method_named knows) to view one of the
     targets (with the task on, the slot, and with ``secondary`` the holes that stand in
     for it: :func:`task_targets`), searching ``problem`` (the rating over the map), look,
     and with the task on, do it."""

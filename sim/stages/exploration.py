@@ -21,7 +21,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mapping import (
+from taskcam.mapping import (
     FloorMap,
     GainModel,
     OccupancyGrid,
@@ -32,14 +32,14 @@ from mapping import (
     opencv_pose,
     region_mask,
 )
-from sim.config.scenario import Scenario
-from sim.stages.world import World
-from sim.world.base_scanner import scan_into
-from sim.world.collision import Proximity
-from sim.world.ik import IKSettings, solve_camera_pose
-from sim.world.render import Renderer, camera_pose
-from sim.world.scene import Robot, Scene
-from sim.world.sensing import DepthSensor
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.stages.world import World
+from taskcam.sim.world.base_scanner import scan_into
+from taskcam.sim.world.collision import Proximity
+from taskcam.sim.world.ik import IKSettings, solve_camera_pose
+from taskcam.sim.world.render import Renderer, camera_pose
+from taskcam.sim.world.scene import Robot, Scene
+from taskcam.sim.world.sensing import DepthSensor
 
 # Mapping views need not be exact: the view is rated where the camera really is.
 VIEW_IK = IKSettings(max_iterations=60, position_tolerance_m=0.005,

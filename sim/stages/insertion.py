@@ -11,14 +11,14 @@ from typing import Any
 
 import numpy as np
 
-from calibration.target_frame import Sighting, in_measured_frame
-from mapping import LyingPose, Target, lying_pose
-from sim.stages.corrector import PoseCorrector
-from sim.stages.panel_model import panel_model
-from sim.stages.place import place, ranked_field
-from sim.stages.placement_result import Placement
-from sim.stages.rating_problem import RatingProblem
-from sim.stages.relative import (
+from taskcam.calibration.target_frame import Sighting, in_measured_frame
+from taskcam.mapping import LyingPose, Target, lying_pose
+from taskcam.sim.stages.corrector import PoseCorrector
+from taskcam.sim.stages.panel_model import panel_model
+from taskcam.sim.stages.place import place, ranked_field
+from taskcam.sim.stages.placement_result import Placement
+from taskcam.sim.stages.rating_problem import RatingProblem
+from taskcam.sim.stages.relative import (
     SlotBelief,
     StandIn,
     believed_slot,
@@ -26,14 +26,14 @@ from sim.stages.relative import (
     slot_outer_half_width,
     stand_in,
 )
-from sim.stages.replacement import Replacement
-from sim.stages.site_view import SITE, SiteWatch, box_corners
-from sim.stages.slot_target import nominal_panel, nominal_slot, stereo_rig
-from sim.stages.task import InsertionTask
-from sim.stages.task_result import Camera, TaskResult
-from sim.stages.world import World
-from sim.world.optics import Lens
-from sim.world.render import Renderer
+from taskcam.sim.stages.replacement import Replacement
+from taskcam.sim.stages.site_view import SITE, SiteWatch, box_corners
+from taskcam.sim.stages.slot_target import nominal_panel, nominal_slot, stereo_rig
+from taskcam.sim.stages.task import InsertionTask
+from taskcam.sim.stages.task_result import Camera, TaskResult
+from taskcam.sim.stages.world import World
+from taskcam.sim.world.optics import Lens
+from taskcam.sim.world.render import Renderer
 
 
 @dataclass(frozen=True)

@@ -16,19 +16,19 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from calibration import locate_hole
-from calibration.target_frame import Sighting, projected_disk, sight
-from mapping import OccupancyGrid, Pinhole, Target, opencv_pose
-from placement import line_of_sight
-from sim.config.scenario import Scenario
-from sim.stages.placement_result import Placement
-from sim.stages.rating_problem import target_model
-from sim.stages.relative import SLOT_REFIT_SD, SLOT_WALLS, SlotBelief, slot_model
-from sim.stages.slot_target import is_slot, nominal_slot, sight_slot, stereo_rig
-from sim.stages.task_images import pair_seen
-from sim.stages.world import Bodies, State, World
-from sim.world.render import Renderer, camera_pose
-from sim.world.scene import Robot
+from taskcam.calibration import locate_hole
+from taskcam.calibration.target_frame import Sighting, projected_disk, sight
+from taskcam.mapping import OccupancyGrid, Pinhole, Target, opencv_pose
+from taskcam.placement import line_of_sight
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.stages.placement_result import Placement
+from taskcam.sim.stages.rating_problem import target_model
+from taskcam.sim.stages.relative import SLOT_REFIT_SD, SLOT_WALLS, SlotBelief, slot_model
+from taskcam.sim.stages.slot_target import is_slot, nominal_slot, sight_slot, stereo_rig
+from taskcam.sim.stages.task_images import pair_seen
+from taskcam.sim.stages.world import Bodies, State, World
+from taskcam.sim.world.render import Renderer, camera_pose
+from taskcam.sim.world.scene import Robot
 
 # A line of sight to a target is checked in the map up to this many voxels short of it:
 # the plate around the hole fills the last voxels (about 3 along a line 70 deg oblique).

@@ -10,13 +10,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sim.screen import Advance
-from sim.stages.correction import Correction
-from sim.stages.corrector import PoseCorrector
-from sim.stages.world import World
-from sim.world.motion import MotionResult
-from sim.world.render import camera_pose
-from sim.world.scene import Robot
+from taskcam.sim.screen import Advance
+from taskcam.sim.stages.correction import Correction
+from taskcam.sim.stages.corrector import PoseCorrector
+from taskcam.sim.stages.world import World
+from taskcam.sim.world.motion import MotionResult
+from taskcam.sim.world.render import camera_pose
+from taskcam.sim.world.scene import Robot
 
 
 def move(world: World, robot: Robot, path: np.ndarray, corrector: PoseCorrector | None,

@@ -17,8 +17,8 @@ import cv2
 import mujoco
 import numpy as np
 
-from mapping import Pinhole
-from sim.stages.overview_marks import project
+from taskcam.mapping import Pinhole
+from taskcam.sim.stages.overview_marks import project
 
 ELEVATION_DEG = -30.0  # looking down this far below the horizon
 MARGIN = 1.15  # the framed sphere's radius grown by this, so nothing touches the edge

@@ -14,7 +14,7 @@ import cv2
 import mujoco
 import numpy as np
 
-from mapping import opencv_pose
+from taskcam.mapping import opencv_pose
 
 PLACED_RGBA = (0.1, 0.9, 0.3, 1.0)  # a placed camera's frustum
 UNPLACED_RGBA = (0.95, 0.15, 0.1, 1.0)  # a camera that was not placed: where it ended

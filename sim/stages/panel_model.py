@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import mujoco
 
-from mapping import BoxModel
+from taskcam.mapping import BoxModel
 
 
 def panel_model(model: mujoco.MjModel) -> BoxModel:

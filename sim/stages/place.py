@@ -4,7 +4,7 @@ The placement method (placement/methods.py, by name) gives the candidates in the
 they are tried: the rating function's, searched over known-free voxels in the robot's
 region (the robots placed before count as occluders, at their commanded poses), or
 others. They are tried in turn (where the method asks it, only those from which the hole
-detector can find the target, placement.detectable, and that hold the insertion site in
+detector can find the target, taskcam.placement.detectable, and that hold the insertion site in
 frame) until one is reachable (sim/world/planning.py: a goal configuration by IK,
 a path for base and arm by OMPL that keeps clear of everything) and sees its target
 with no geometry in the way;
@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from mapping import GainModel, Target, region_mask
-from placement import (
+from taskcam.mapping import GainModel, Target, region_mask
+from taskcam.placement import (
     MethodInput,
     MethodSettings,
     RatingField,
@@ -32,21 +32,21 @@ from placement import (
     method_named,
     target_points,
 )
-from sim.config.scenario import Scenario
-from sim.stages.corrector import PoseCorrector
-from sim.stages.corridor import carry_corridor, sees_site, site_corners
-from sim.stages.exploration import gain_model
-from sim.stages.move import move
-from sim.stages.placement_result import Placement
-from sim.stages.rating_problem import RatingProblem, target_model
-from sim.stages.scout import Scouting
-from sim.stages.world import World
-from sim.world.base_scanner import scan_into
-from sim.world.collision import KeepOutBoxes, blocked_rays, robot_points
-from sim.world.planning import ArmPlanner
-from sim.world.render import camera_pose
-from sim.world.scene import Robot
-from sim.world.sensing import DepthSensor
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.stages.corrector import PoseCorrector
+from taskcam.sim.stages.corridor import carry_corridor, sees_site, site_corners
+from taskcam.sim.stages.exploration import gain_model
+from taskcam.sim.stages.move import move
+from taskcam.sim.stages.placement_result import Placement
+from taskcam.sim.stages.rating_problem import RatingProblem, target_model
+from taskcam.sim.stages.scout import Scouting
+from taskcam.sim.stages.world import World
+from taskcam.sim.world.base_scanner import scan_into
+from taskcam.sim.world.collision import KeepOutBoxes, blocked_rays, robot_points
+from taskcam.sim.world.planning import ArmPlanner
+from taskcam.sim.world.render import camera_pose
+from taskcam.sim.world.scene import Robot
+from taskcam.sim.world.sensing import DepthSensor
 
 REJECTED_RADIUS_M = 0.08  # after a candidate fails, skip the ones this close to it
 # Candidates whose every stand of the capability map is in collision are refused by a
@@ -73,7 +73,7 @@ def ranked_field(world: World, problem: RatingProblem, robot: Robot,
                  targets: tuple[Target, ...], taken: list[np.ndarray], method: str,
                  extra: Sequence[np.ndarray] = ()) -> RatingField:
     """The candidates for ``robot``'s camera in the order the placement ``method`` (a
-    name placement.method_named knows) tries them; ``extra`` are point sets of further
+    name taskcam.placement.method_named knows) tries them; ``extra`` are point sets of further
     occluders (the panel during the task), as the other robots are."""
     s = world.scenario
     others = [pts for other in world.scene.robots if other is not robot

@@ -15,14 +15,14 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from calibration.pose import rotation_deg
-from mapping import Target
-from sim.stages.correction import Correction
-from sim.stages.task_result import Camera
-from sim.world.ik import IKResult
-from sim.world.motion import MotionResult
-from sim.world.plan import Plan
-from sim.world.scene import Robot
+from taskcam.calibration.pose import rotation_deg
+from taskcam.mapping import Target
+from taskcam.sim.stages.correction import Correction
+from taskcam.sim.stages.task_result import Camera
+from taskcam.sim.world.ik import IKResult
+from taskcam.sim.world.motion import MotionResult
+from taskcam.sim.world.plan import Plan
+from taskcam.sim.world.scene import Robot
 
 
 def pose_dict(T: np.ndarray) -> dict[str, list[float]]:

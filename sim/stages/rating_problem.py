@@ -13,8 +13,8 @@ import math
 
 import numpy as np
 
-from mapping import OccupancyGrid, Target
-from placement import (
+from taskcam.mapping import OccupancyGrid, Target
+from taskcam.placement import (
     CameraModel,
     Hull,
     RatingField,
@@ -25,8 +25,8 @@ from placement import (
     rate_positions,
     search,
 )
-from sim.config.scenario import Scenario
-from sim.stages.timer import Timer
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.stages.timer import Timer
 
 
 def camera_model(s: Scenario) -> CameraModel:

@@ -26,17 +26,17 @@ import numpy as np
 import rerun as rr
 from scipy.spatial.transform import Rotation
 
-from mapping import OccupancyGrid, Pinhole, opencv_pose
-from sim.stages.record_layout import layout
-from sim.stages.scene_record import SceneGeometry, log_geometry, log_poses
+from taskcam.mapping import OccupancyGrid, Pinhole, opencv_pose
+from taskcam.sim.stages.record_layout import layout
+from taskcam.sim.stages.scene_record import SceneGeometry, log_geometry, log_poses
 
 if TYPE_CHECKING:
     import mujoco
 
-    from calibration.displacement import Relative
-    from sim.stages.correction import Correction
-    from sim.stages.overview import Film
-    from sim.stages.task_result import Camera
+    from taskcam.calibration.displacement import Relative
+    from taskcam.sim.stages.correction import Correction
+    from taskcam.sim.stages.overview import Film
+    from taskcam.sim.stages.task_result import Camera
 
 
 BODY_RATE_HZ = 30.0  # moving bodies' poses are logged at most this often in simulated time

@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibration.displacement import (
+from taskcam.calibration.displacement import (
     Fused,
     Relative,
     fuse_robust,
@@ -31,12 +31,12 @@ from calibration.displacement import (
     measure_relative,
     via_feature,
 )
-from calibration.edge_fit import fit_edges
-from calibration.edge_model import Boxes, Seen, StereoRig
-from calibration.ekf import StereoCamera
-from calibration.target_frame import Sighting, frame_motion
-from mapping import Target, opencv_pose
-from sim.stages.task_result import Camera
+from taskcam.calibration.edge_fit import fit_edges
+from taskcam.calibration.edge_model import Boxes, Seen, StereoRig
+from taskcam.calibration.ekf import StereoCamera
+from taskcam.calibration.target_frame import Sighting, frame_motion
+from taskcam.mapping import Target, opencv_pose
+from taskcam.sim.stages.task_result import Camera
 
 # The holes' frame puts the slot within about this (m, rad per axis): in 15 views at 0.8 m
 # and 30 deg (bench/studies/measurement.py's views) the slot it carried was 0.3-2.7 mm off per axis

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.stages.task_result import Camera
+from taskcam.sim.stages.task_result import Camera
 
 
 @dataclass(frozen=True)

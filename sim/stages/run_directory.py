@@ -9,19 +9,19 @@ from typing import Any
 
 import numpy as np
 
-from sim.screen import Meter
-from sim.stages.episode import Episode
-from sim.stages.overview import Film, Overview, framed_points, save_png
-from sim.stages.overview_marks import (
+from taskcam.sim.screen import Meter
+from taskcam.sim.stages.episode import Episode
+from taskcam.sim.stages.overview import Film, Overview, framed_points, save_png
+from taskcam.sim.stages.overview_marks import (
     TARGET_RGB,
     draw_labels,
     rgb255,
     robot_marks,
     target_marks,
 )
-from sim.stages.record import Recorder
-from sim.stages.slot_target import task_targets
-from sim.world.scene import save_scene
+from taskcam.sim.stages.record import Recorder
+from taskcam.sim.stages.slot_target import task_targets
+from taskcam.sim.world.scene import save_scene
 
 
 def write_run(episode: Episode, out: Path, record: bool = True,

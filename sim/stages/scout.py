@@ -19,17 +19,17 @@ from typing import Any
 
 import numpy as np
 
-from mapping import integrate_depth, opencv_pose
-from mapping.floor_map import UNSCANNED
-from sim.stages.move import move
-from sim.stages.world import World
-from sim.world.base_scanner import scan_into
-from sim.world.ik import solve_camera_pose
-from sim.world.plan import Plan
-from sim.world.planning import ArmPlanner
-from sim.world.render import camera_pose
-from sim.world.scene import Robot
-from sim.world.sensing import DepthSensor
+from taskcam.mapping import integrate_depth, opencv_pose
+from taskcam.mapping.floor_map import UNSCANNED
+from taskcam.sim.stages.move import move
+from taskcam.sim.stages.world import World
+from taskcam.sim.world.base_scanner import scan_into
+from taskcam.sim.world.ik import solve_camera_pose
+from taskcam.sim.world.plan import Plan
+from taskcam.sim.world.planning import ArmPlanner
+from taskcam.sim.world.render import camera_pose
+from taskcam.sim.world.scene import Robot
+from taskcam.sim.world.sensing import DepthSensor
 
 # A robot goes to look at most this many times a placement (a trip: a look or two and a
 # drive of a few seconds; three let it look round a wall and again from nearer) ...

@@ -11,8 +11,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from scipy import ndimage
 
-from mapping import OccupancyGrid, stored_log_odds
-from placement import (
+from taskcam.mapping import OccupancyGrid, stored_log_odds
+from taskcam.placement import (
     Hull,
     SearchSettings,
     TargetModel,
@@ -21,7 +21,7 @@ from placement import (
     grid_occluders,
     target_outline,
 )
-from placement.tfv import PackedHulls
+from taskcam.placement.tfv import PackedHulls
 
 NEIGHBOURS = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
 
@@ -55,7 +55,7 @@ class SiteCache:
     occlude, above the site's plane) with the last call's. A connected component the
     change did not reach (26-neighbourhood: it has no voxel in or next to a changed
     one) is the same component as before and keeps its pieces; the others are cut into
-    pieces again (``placement.grid_occluders`` on a sub-grid holding that component
+    pieces again (``taskcam.placement.grid_occluders`` on a sub-grid holding that component
     alone, aligned to the hull blocks, so the pieces are the ones the whole map gives),
     and only pieces not seen before are hulled. Each hull (the map's pieces, the
     panel, other robots) keeps, per camera distance level, the directions from which it

@@ -4,10 +4,10 @@ is bad enough to place it again.
 During the insertion (sim/stages/task.py) the panel hangs over its slot and comes down
 into it: it is a moving occluder of the very place the cameras must watch. Every step,
 each placed camera's position is rated (eq. 1-4) for the **insertion site** as a target,
-on the map as the task keeps it (the panel's voxels moved by ``mapping.move_object``),
+on the map as the task keeps it (the panel's voxels moved by ``taskcam.mapping.move_object``),
 with the panel at its current believed pose as one more convex hull, exactly as the
 placement search rates a candidate with other robots' bodies as extra occluders
-(``placement.search``'s ``extra_occluders``). Only the cameras' own positions are
+(``taskcam.placement.search``'s ``extra_occluders``). Only the cameras' own positions are
 rated, not a search, and the map's occluders are kept between calls
 (:class:`SiteCache`, sim/stages/site_occluders.py): only the connected components of
 the map that changed are hulled again, so a step costs a few milliseconds.
@@ -41,20 +41,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mapping import BoxModel, OccupancyGrid, stored_log_odds
-from placement import TargetModel, distance_level, rate, tfv_at
-from placement.tfv import sphere
-from sim.config.scenario import Scenario
-from sim.stages.rating_problem import RatingProblem
-from sim.stages.replacement_rule import ReplacementTrigger
-from sim.stages.site_occluders import SiteCache
+from taskcam.mapping import BoxModel, OccupancyGrid, stored_log_odds
+from taskcam.placement import TargetModel, distance_level, rate, tfv_at
+from taskcam.placement.tfv import sphere
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.stages.rating_problem import RatingProblem
+from taskcam.sim.stages.replacement_rule import ReplacementTrigger
+from taskcam.sim.stages.site_occluders import SiteCache
 
 # The site rises at most this far over the slot: over the rails (3 cm) and the rest
 # of the voxel their tops are mapped into when they lie on its floor (with 5 cm voxels
 # the site rises to 0.08 m over the slot), not up a panel that stands in it.
 MAX_LIFT_M = 0.1
 # ... to this far over the top of the highest voxel it climbed, as the placement's
-# sight points sit 1 mm over a target's face (placement.target_points): clear of
+# sight points sit 1 mm over a target's face (taskcam.placement.target_points): clear of
 # the voxel boundary, whatever the rounding of the voxels' heights.
 OVER_SURFACE_M = 0.001
 
@@ -122,7 +122,7 @@ def site_rating(grid: OccupancyGrid, scenario: Scenario, site: TargetModel,
     moved them) with the scenario's camera, weights and TFV settings, the panel
     (``panel`` at ``panel_pose``, its believed pose, 4x4) as one more convex hull, and
     ``others`` (point sets, m: other robots' bodies) as more: what
-    ``placement.search`` gives a candidate at ``camera`` with the panel and ``others``
+    ``taskcam.placement.search`` gives a candidate at ``camera`` with the panel and ``others``
     as its extra occluders. Pass the ``cache`` kept from the last call to rate
     cheaply: only what changed since is hulled again (a few ms a step on the default
     map; from scratch about 0.5 s)."""

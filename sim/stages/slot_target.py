@@ -17,22 +17,22 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibration.edge_fit import fit_edges
-from calibration.edge_model import Boxes, Seen, StereoRig
-from calibration.target_frame import Sighting
-from mapping import Target, opencv_pose
-from sim.stages.panel_model import panel_model
-from sim.stages.relative import (
+from taskcam.calibration.edge_fit import fit_edges
+from taskcam.calibration.edge_model import Boxes, Seen, StereoRig
+from taskcam.calibration.target_frame import Sighting
+from taskcam.mapping import Target, opencv_pose
+from taskcam.sim.stages.panel_model import panel_model
+from taskcam.sim.stages.relative import (
     SlotBelief,
     slot_half_width,
     slot_model,
     slot_outer_half_width,
     slot_start_in,
 )
-from sim.stages.site_view import box_corners, site_target
-from sim.stages.task_result import Camera
-from sim.stages.world import World
-from sim.world.optics import Lens
+from taskcam.sim.stages.site_view import box_corners, site_target
+from taskcam.sim.stages.task_result import Camera
+from taskcam.sim.stages.world import World
+from taskcam.sim.world.optics import Lens
 
 SLOT = "slot"  # the slot's name as a target
 SLOT_SITE = "workpiece/slot"  # its frame in the model: the point between the rails' feet

@@ -40,21 +40,21 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from calibration.displacement import largest_sd, prediction_start, stop_reason
-from calibration.edge_model import Boxes, StereoRig
-from mapping import (
+from taskcam.calibration.displacement import largest_sd, prediction_start, stop_reason
+from taskcam.calibration.edge_model import Boxes, StereoRig
+from taskcam.mapping import (
     LyingPose,
     OccupancyGrid,
     Pinhole,
     move_object,
     support_layer,
 )
-from sim.config.stages import TaskConfig
-from sim.screen import Advance
-from sim.stages.absolute_panel import AbsolutePanel
-from sim.stages.panel_model import panel_model
-from sim.stages.record import Recorder
-from sim.stages.relative import (
+from taskcam.sim.config.stages import TaskConfig
+from taskcam.sim.screen import Advance
+from taskcam.sim.stages.absolute_panel import AbsolutePanel
+from taskcam.sim.stages.panel_model import panel_model
+from taskcam.sim.stages.record import Recorder
+from taskcam.sim.stages.relative import (
     Measurement,
     PanelBelief,
     RelativeMeasurer,
@@ -62,13 +62,13 @@ from sim.stages.relative import (
     StandIn,
     slot_model,
 )
-from sim.stages.replacement import Replace
-from sim.stages.site_view import SiteWatch
-from sim.stages.task_images import StereoPair, TaskImages
-from sim.stages.task_result import Camera, TaskResult
-from sim.world.optics import Lens
-from sim.world.render import Renderer
-from sim.world.scene import Scene
+from taskcam.sim.stages.replacement import Replace
+from taskcam.sim.stages.site_view import SiteWatch
+from taskcam.sim.stages.task_images import StereoPair, TaskImages
+from taskcam.sim.stages.task_result import Camera, TaskResult
+from taskcam.sim.world.optics import Lens
+from taskcam.sim.world.render import Renderer
+from taskcam.sim.world.scene import Scene
 
 STEP_S = 1.0  # simulated time per steering step, for the recording
 OVER_SLOT_M = 0.005  # the panel descends once measured this close above the slot (m)

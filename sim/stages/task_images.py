@@ -12,14 +12,14 @@ import cv2
 import mujoco
 import numpy as np
 
-from calibration.edge_model import Seen, StereoRig
-from calibration.edge_search import CORNERS
-from calibration.panel import measuring_window, panel_mask
-from mapping import Pinhole, opencv_pose
-from mapping.stereo import StereoSettings, stereo_depth
-from sim.stages.relative import RelativeMeasurer
-from sim.stages.task_result import Camera
-from sim.world.optics import Lens, defocus
+from taskcam.calibration.edge_model import Seen, StereoRig
+from taskcam.calibration.edge_search import CORNERS
+from taskcam.calibration.panel import measuring_window, panel_mask
+from taskcam.mapping import Pinhole, opencv_pose
+from taskcam.mapping.stereo import StereoSettings, stereo_depth
+from taskcam.sim.stages.relative import RelativeMeasurer
+from taskcam.sim.stages.task_result import Camera
+from taskcam.sim.world.optics import Lens, defocus
 
 MIN_POINTS = 150  # panel pixels (and points) a measurement needs, over all cameras
 BLUR_MARGIN_PX = 48  # blurred around the panel: 3 sigma of the widest blur level and more
@@ -38,7 +38,7 @@ SLOT_MARGIN_PX = 48
 
 
 class TaskRenderer(Protocol):
-    """What the task renders with: a :class:`sim.world.render.Renderer`, or a stand-in
+    """What the task renders with: a :class:`taskcam.sim.world.render.Renderer`, or a stand-in
     that serves images rendered beforehand (as :meth:`Renderer.rgb_and_depth` and
     :meth:`Renderer.segmentation` give them)."""
 

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.world.scene import Robot
+from taskcam.sim.world.scene import Robot
 
 TRUSTED = ("corrected", "as commanded")  # pose statuses measured with at full weight
 

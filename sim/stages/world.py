@@ -22,15 +22,15 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mapping import FloorMap, OccupancyGrid, Pinhole, SensorModel
-from sim.config.scenario import Scenario
-from sim.screen import Meter, no_meter
-from sim.stages.record import Recorder
-from sim.stages.timer import Timer
-from sim.world.arm import Arm, scene_arm
-from sim.world.motion import ErrorModel, Mover
-from sim.world.render import camera_pinhole
-from sim.world.scene import Robot, Scene, build_scene, yaw_quat
+from taskcam.mapping import FloorMap, OccupancyGrid, Pinhole, SensorModel
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.screen import Meter, no_meter
+from taskcam.sim.stages.record import Recorder
+from taskcam.sim.stages.timer import Timer
+from taskcam.sim.world.arm import Arm, scene_arm
+from taskcam.sim.world.motion import ErrorModel, Mover
+from taskcam.sim.world.render import camera_pinhole
+from taskcam.sim.world.scene import Robot, Scene, build_scene, yaw_quat
 
 # The joints and mocap bodies (positions, quaternions) of a world at one moment.
 State = tuple[np.ndarray, np.ndarray, np.ndarray]

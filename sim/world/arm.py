@@ -25,10 +25,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from placement.reach import Chain, ReachCells, ReachMap, build_reach_map
-from sim.world.collision import Proximity
-from sim.world.robot_model import ARM_JOINTS
-from sim.world.scene import Robot, Scene
+from taskcam.placement.reach import Chain, ReachCells, ReachMap, build_reach_map
+from taskcam.sim.world.collision import Proximity
+from taskcam.sim.world.robot_model import ARM_JOINTS
+from taskcam.sim.world.scene import Robot, Scene
 
 # Configurations drawn per map: with them 95 % of the arm's reachable cells are found
 # (tests/test_reach.py holds the map against IK). A draw costs ~1 us of forward

@@ -1,6 +1,6 @@
 """The bases' planar laser scanners: each robot's base sweeps a horizontal plane near
 the floor with MuJoCo's ray casts in the simulated world, and the scan is entered into
-the floor plan (mapping.FloorMap) where the robot believes it stands.
+the floor plan (taskcam.mapping.FloorMap) where the robot believes it stands.
 
 The scanner is a plausible mobile base's safety scanner: a 360° plane (two 270°
 scanners at opposite corners, as omnidirectional bases carry them) SCAN_HEIGHT_M above
@@ -17,8 +17,8 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from mapping import FloorMap, ray_directions
-from sim.world.scene import Robot
+from taskcam.mapping import FloorMap, ray_directions
+from taskcam.sim.world.scene import Robot
 
 SCAN_HEIGHT_M = 0.15  # the scan plane (m): safety scanners sit 0.1-0.2 m above the floor
 SCAN_RAYS = 720  # a ray every 0.5° (such scanners resolve 0.33-0.5°)

@@ -9,7 +9,7 @@ import mujoco
 import numba as nb
 import numpy as np
 
-from sim.world.scene import Robot
+from taskcam.sim.world.scene import Robot
 
 
 @dataclass(frozen=True)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import mujoco
 
-from sim.config.scene import TargetConfig
-from sim.config.schema import ScenarioError
+from taskcam.sim.config.scene import TargetConfig
+from taskcam.sim.config.schema import ScenarioError
 
 FIXTURE_POST_HALF_M = 0.02  # a fixture's post: 4 cm square
 FIXTURE_RIM_M = 0.04  # its top plate reaches this far beyond the hole's rim on every side

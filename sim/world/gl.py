@@ -76,5 +76,5 @@ def require_gl_backend() -> str:
     chosen = os.environ.get("MUJOCO_GL")
     if not chosen:
         raise GLError("no GL backend was chosen before mujoco loaded: call "
-                      "sim.world.gl.resolve_gl_backend() before importing what renders")
+                      "taskcam.sim.world.gl.resolve_gl_backend() before importing what renders")
     return chosen

@@ -11,8 +11,8 @@ import mink
 import mujoco
 import numpy as np
 
-from sim.world.collision import collision_geoms
-from sim.world.scene import BASE_JOINTS, JOINT_SPEEDS, ROBOT_JOINTS, Robot
+from taskcam.sim.world.collision import collision_geoms
+from taskcam.sim.world.scene import BASE_JOINTS, JOINT_SPEEDS, ROBOT_JOINTS, Robot
 
 OPTICAL_AXIS = (0.0, 0.0, -1.0)  # a MuJoCo camera looks along its -z axis
 SELF_MARGIN_M = 0.005  # between a robot's own links (some sit 1.5 cm apart at home)

@@ -10,8 +10,8 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from sim.world.scene import Robot
-from sim.world.standing import STAND_CELL_M
+from taskcam.sim.world.scene import Robot
+from taskcam.sim.world.standing import STAND_CELL_M
 
 CHECK_STEP = 0.01  # m (base) or rad (joints): motions are checked at least this finely
 ARM_SWING_RAD = math.pi / 2  # see search_box

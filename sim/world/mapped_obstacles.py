@@ -27,9 +27,9 @@ import mujoco
 import numba as nb
 import numpy as np
 
-from mapping import FloorMap, ObstacleField, OccupancyGrid
-from sim.world.collision import collision_geoms
-from sim.world.scene import Robot
+from taskcam.mapping import FloorMap, ObstacleField, OccupancyGrid
+from taskcam.sim.world.collision import collision_geoms
+from taskcam.sim.world.scene import Robot
 
 SPHERE, CAPSULE, CYLINDER, BOX = (int(k) for k in (
     mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CAPSULE,
@@ -182,7 +182,7 @@ def left_to_map(model: mujoco.MjModel, data: mujoco.MjData, grid: OccupancyGrid)
 
 @dataclass(frozen=True)
 class MapFields:
-    """What the maps leave room for (mapping.ObstacleField each)."""
+    """What the maps leave room for (taskcam.mapping.ObstacleField each)."""
 
     unknown: ObstacleField  # 3-D: occupied and never-observed voxels (arm and head)
     occupied: ObstacleField  # 3-D: occupied voxels (the base), on the same grid

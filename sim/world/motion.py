@@ -1,4 +1,4 @@
-"""Motion in physics: a joint-space path, timed jerk-limited (``sim.world.timing``),
+"""Motion in physics: a joint-space path, timed jerk-limited (``taskcam.sim.world.timing``),
 followed through position actuators, with the robot's positioning errors (sec. 2.4),
 clearance and contacts watched along the way.
 
@@ -29,10 +29,10 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim.config.stages import MotionConfig
-from sim.world.collision import Clearance, Proximity
-from sim.world.scene import ROBOT_JOINTS, Robot
-from sim.world.timing import ROBOT_LIMITS, time_path
+from taskcam.sim.config.stages import MotionConfig
+from taskcam.sim.world.collision import Clearance, Proximity
+from taskcam.sim.world.scene import ROBOT_JOINTS, Robot
+from taskcam.sim.world.timing import ROBOT_LIMITS, time_path
 
 ARM_MOUNT = "arm_base"  # the body the suspension tilts, about the base's floor point
 TILT_EVERY = 10  # physics steps between updates of the building-up suspension tilt

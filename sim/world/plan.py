@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.world.ik import IKResult
+from taskcam.sim.world.ik import IKResult
 
 
 @dataclass(frozen=True)

@@ -29,12 +29,12 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mapping import FloorMap, OccupancyGrid
-from sim.world.arm import Arm, scene_arm
-from sim.world.base_scanner import SCAN_HEIGHT_M
-from sim.world.collision import KeepOutBoxes, Proximity
-from sim.world.ik import IKResult, IKSettings, solve_camera_pose
-from sim.world.joint_space import (
+from taskcam.mapping import FloorMap, OccupancyGrid
+from taskcam.sim.world.arm import Arm, scene_arm
+from taskcam.sim.world.base_scanner import SCAN_HEIGHT_M
+from taskcam.sim.world.collision import KeepOutBoxes, Proximity
+from taskcam.sim.world.ik import IKResult, IKSettings, solve_camera_pose
+from taskcam.sim.world.joint_space import (
     CHECK_STEP,
     STEP_RANGE,
     near_angle,
@@ -42,12 +42,12 @@ from sim.world.joint_space import (
     search_box,
     segment_clear,
 )
-from sim.world.mapped_obstacles import MapFields, left_to_map, map_fields, robot_spheres
-from sim.world.motion import dense_path
-from sim.world.plan import Plan
-from sim.world.rrt import rrt_connect
-from sim.world.scene import Robot, Scene
-from sim.world.standing import STAND_CELL_M, Places, Stands, clear_places, ranked_stands
+from taskcam.sim.world.mapped_obstacles import MapFields, left_to_map, map_fields, robot_spheres
+from taskcam.sim.world.motion import dense_path
+from taskcam.sim.world.plan import Plan
+from taskcam.sim.world.rrt import rrt_connect
+from taskcam.sim.world.scene import Robot, Scene
+from taskcam.sim.world.standing import STAND_CELL_M, Places, Stands, clear_places, ranked_stands
 
 # The goal's IK from a stand of the capability map: the base stays about where the seed
 # put it (its posture costs 100 times the arm's) and the arm reaches

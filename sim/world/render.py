@@ -9,8 +9,8 @@ from types import TracebackType
 import mujoco
 import numpy as np
 
-from mapping import Pinhole
-from sim.world.gl import require_gl_backend
+from taskcam.mapping import Pinhole
+from taskcam.sim.world.gl import require_gl_backend
 
 
 def camera_pinhole(model: mujoco.MjModel, camera: str) -> Pinhole:

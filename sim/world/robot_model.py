@@ -20,8 +20,8 @@ from pathlib import Path
 
 import mujoco
 
-from sim.config.scenario import Scenario
-from sim.config.schema import ScenarioError
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.config.schema import ScenarioError
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 ROBOT_XML = MODELS_DIR / "camera_robot.xml"

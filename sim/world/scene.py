@@ -9,12 +9,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from mapping import Target
-from sim.config.scenario import Scenario
-from sim.config.schema import ScenarioError
-from sim.world.fixtures import add_fixture
-from sim.world.robot_model import camera_robot
-from sim.world.textures import as_files, link_files, paint
+from taskcam.mapping import Target
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.world.fixtures import add_fixture
+from taskcam.sim.world.robot_model import camera_robot
+from taskcam.sim.world.textures import as_files, link_files, paint
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 WORKPIECE_XML = MODELS_DIR / "workpiece.xml"

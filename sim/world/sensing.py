@@ -8,9 +8,9 @@ from typing import Literal
 import mujoco
 import numpy as np
 
-from mapping import Pinhole, stereo_depth
-from sim.world.render import Renderer
-from sim.world.scene import Robot
+from taskcam.mapping import Pinhole, stereo_depth
+from taskcam.sim.world.render import Renderer
+from taskcam.sim.world.scene import Robot
 
 
 class DepthSensor:

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mapping import drive_lengths
-from sim.world.arm import Arm
+from taskcam.mapping import drive_lengths
+from taskcam.sim.world.arm import Arm
 
 STAND_CELL_M = 0.1  # the grid of places a base may stand on (m), see clear_places
 # Stands are taken side by side round the camera, behind it (as seen from the target)

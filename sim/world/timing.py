@@ -20,7 +20,7 @@ import numpy as np
 from ruckig import InputParameter, Result, Ruckig
 from ruckig import Trajectory as RuckigTrajectory
 
-from sim.world.scene import JOINT_SPEEDS, ROBOT_JOINTS
+from taskcam.sim.world.scene import JOINT_SPEEDS, ROBOT_JOINTS
 
 MIN_SEGMENT = 1e-12  # a segment whose joints all move less than this (m, rad) is skipped
 

@@ -38,10 +38,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from sim.config.scenario import Scenario
-from sim.experiments.soak.audit_findings import Audit
-from sim.experiments.soak.audit_robot import RobotAudit
-from sim.experiments.soak.audit_scene import SavedScene
+from taskcam.sim.config.scenario import Scenario
+from taskcam.sim.experiments.soak.audit_findings import Audit
+from taskcam.sim.experiments.soak.audit_robot import RobotAudit
+from taskcam.sim.experiments.soak.audit_scene import SavedScene
 
 
 def audit_run(run_dir: str | Path, scenario: Scenario | None = None) -> Audit:

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from sim.experiments.soak.audit_findings import Audit, reason_key
-from sim.experiments.soak.audit_scene import (
+from taskcam.sim.experiments.soak.audit_findings import Audit, reason_key
+from taskcam.sim.experiments.soak.audit_scene import (
     SavedScene,
     inside_image,
     pose_gap,

@@ -11,8 +11,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from sim.stages.relative import SLOT_WALLS
-from sim.stages.slot_target import SLOT, SLOT_SITE
+from taskcam.sim.stages.relative import SLOT_WALLS
+from taskcam.sim.stages.slot_target import SLOT, SLOT_SITE
 
 RENDERED_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # MuJoCo's visible groups
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.experiments.soak.draw_obstacles import (
+from taskcam.sim.experiments.soak.draw_obstacles import (
     PANEL_RADIUS,
     TABLE_HALF,
     Frame,

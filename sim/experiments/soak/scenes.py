@@ -27,14 +27,14 @@ from typing import Any
 
 import numpy as np
 
-from sim.config.scenario import load_scenario
-from sim.config.schema import ScenarioError
-from sim.experiments.runner import init_worker, one_thread_each
-from sim.experiments.soak.audit import audit_run
-from sim.experiments.soak.audit_findings import Finding
-from sim.experiments.soak.draw_scenario import SIZES, draw_scenario, is_heavy, to_toml
-from sim.stages.episode import Episode
-from sim.stages.run_directory import write_run
+from taskcam.sim.config.scenario import load_scenario
+from taskcam.sim.config.schema import ScenarioError
+from taskcam.sim.experiments.runner import init_worker, one_thread_each
+from taskcam.sim.experiments.soak.audit import audit_run
+from taskcam.sim.experiments.soak.audit_findings import Finding
+from taskcam.sim.experiments.soak.draw_scenario import SIZES, draw_scenario, is_heavy, to_toml
+from taskcam.sim.stages.episode import Episode
+from taskcam.sim.stages.run_directory import write_run
 
 MAX_DRAWS = 25  # draws tried for one scene before it counts as having none valid
 _KEY = re.compile(r"key '([^']*)'")
@@ -42,7 +42,7 @@ _KEY = re.compile(r"key '([^']*)'")
 
 def run_file(path: Path, out: Path) -> tuple[int, str]:
     """The scenario file run as ``taskcam run PATH --out OUT --no-record`` runs it, in this
-    process (sim.stages.run_directory.write_run): its exit code (0, 2 for invalid input,
+    process (taskcam.sim.stages.run_directory.write_run): its exit code (0, 2 for invalid input,
     1 for a failure) and what it said."""
     try:
         episode = Episode(load_scenario(path))  # checks the file, then the scene
