@@ -220,7 +220,7 @@ def test_dask_workers_must_start_pinned(tmp_path, pinned):
         with Client(cluster.scheduler_address) as client:
             assert set(client.run(pinned_here).values()) == {pinned}
         if not pinned:
-            with pytest.raises(RuntimeError, match=r"python -m sim\.pinned dask worker"):
+            with pytest.raises(RuntimeError, match=r"python -m taskcam\.sim\.pinned dask worker"):
                 run_sweep(sweep, tmp_path / "r.sqlite", scheduler=cluster.scheduler_address,
                           progress=False)
 
